@@ -1,0 +1,295 @@
+//! The mission's QoS configuration (`qos.toml`): the schema, its loading with located
+//! diagnostics, and the rules beyond types.
+//!
+//! Keys carry their units (`duration_s`, `hover_power_w`, `capacity_mah`); unknown keys are
+//! rejected so a misspelt key is an error, not a silently ignored setting.
+
+mod load;
+mod suggest;
+mod validate;
+
+pub use load::{load_file, load_str, ConfigFailure, LoadedConfig};
+pub use validate::{validate, ConfigIssue, PathSegment};
+
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::fmt;
+
+/// Nominal LiPo cell voltage, used when a battery is given in mAh without a voltage.
+pub const DEFAULT_NOMINAL_CELL_VOLTAGE_V: f64 = 3.7;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MissionConfig {
+    pub mission: Mission,
+    pub battery: Battery,
+    pub flight: Flight,
+    pub power_model: PowerModelConfig,
+    #[serde(rename = "task")]
+    pub tasks: Vec<TaskConfig>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Mission {
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub description: Option<String>,
+    /// Fraction of the usable battery energy that must remain at touchdown, in [0, 1).
+    pub reserve_fraction: f64,
+    #[serde(rename = "phase")]
+    pub phases: Vec<Phase>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Phase {
+    pub name: String,
+    /// Expected duration at the task levels that do not change it.
+    pub duration_s: f64,
+    /// When one task's QoS changes how long the phase lasts (a faster marker detector lands
+    /// sooner), the duration at each of that task's levels, lowest QoS first.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub duration_by_level: Option<DurationByLevel>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DurationByLevel {
+    pub task: String,
+    pub duration_s: Vec<f64>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Battery {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capacity_wh: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capacity_mah: Option<f64>,
+    pub cell_count: u32,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nominal_cell_voltage_v: Option<f64>,
+}
+
+impl Battery {
+    pub fn nominal_voltage_v(&self) -> f64 {
+        self.nominal_cell_voltage_v
+            .unwrap_or(DEFAULT_NOMINAL_CELL_VOLTAGE_V)
+            * f64::from(self.cell_count)
+    }
+
+    /// Nominal energy content: `capacity_wh`, or `capacity_mah` × nominal pack voltage.
+    pub fn capacity_wh(&self) -> Option<f64> {
+        match (self.capacity_wh, self.capacity_mah) {
+            (Some(wh), None) => Some(wh),
+            (None, Some(mah)) => Some(mah / 1000.0 * self.nominal_voltage_v()),
+            _ => None,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Flight {
+    /// Electrical power to hover, used for every phase not listed in `phase_power_w`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hover_power_w: Option<f64>,
+    /// Flight power per phase, by phase name.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub phase_power_w: BTreeMap<String, f64>,
+}
+
+impl Flight {
+    pub fn power_w(&self, phase: &str) -> Option<f64> {
+        self.phase_power_w
+            .get(phase)
+            .copied()
+            .or(self.hover_power_w)
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PowerModelConfig {
+    #[serde(rename = "profile")]
+    pub profiles: Vec<ProfileRef>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProfileRef {
+    /// Path of the profile, relative to the config file.
+    pub path: String,
+    /// The phases whose companion-computer power this profile models.
+    pub phases: Vec<String>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Resource {
+    Cpu,
+    Gpu,
+}
+
+impl fmt::Display for Resource {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Resource::Cpu => "cpu",
+            Resource::Gpu => "gpu",
+        })
+    }
+}
+
+/// What a task's QoS levels set: a rate (higher is better) or a period (shorter is better).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Knob {
+    RateFps,
+    PeriodMs,
+}
+
+impl Knob {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Knob::RateFps => "rate_fps",
+            Knob::PeriodMs => "period_ms",
+        }
+    }
+
+    /// Activation period in milliseconds for a level value of this knob.
+    pub fn period_ms(self, value: f64) -> f64 {
+        match self {
+            Knob::RateFps => 1000.0 / value,
+            Knob::PeriodMs => value,
+        }
+    }
+}
+
+impl fmt::Display for Knob {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaskConfig {
+    pub name: String,
+    pub plugin: String,
+    pub resource: Resource,
+    /// CPU cores the task's worker may be pinned to (CPU tasks only).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cores: Vec<usize>,
+    pub phases: Vec<String>,
+    pub weight: f64,
+    pub knob: Knob,
+    /// Knob values, lowest QoS first.
+    pub levels: Vec<f64>,
+    /// Utility of each level in [0, 1], non-decreasing.
+    pub utility: Vec<f64>,
+    /// Free settings handed to the plugin.
+    #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
+    pub params: toml::Table,
+}
+
+impl TaskConfig {
+    pub fn runs_in(&self, phase: &str) -> bool {
+        self.phases.iter().any(|p| p == phase)
+    }
+
+    /// The profile knob name of this task's QoS knob (`TASK.KNOB`, e.g. `hazard.rate_fps`).
+    pub fn knob_name(&self) -> String {
+        format!("{}.{}", self.name, self.knob)
+    }
+}
+
+impl MissionConfig {
+    pub fn task(&self, name: &str) -> Option<&TaskConfig> {
+        self.tasks.iter().find(|task| task.name == name)
+    }
+
+    pub fn phase(&self, name: &str) -> Option<&Phase> {
+        self.mission.phases.iter().find(|phase| phase.name == name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::catalog::PluginCatalog;
+
+    const REFERENCE: &str = include_str!("../../../qos.toml");
+
+    fn reference() -> MissionConfig {
+        load_str(REFERENCE, None, &PluginCatalog::builtin())
+            .expect("the reference mission is valid")
+    }
+
+    #[test]
+    fn serialised_config_parses_back_equal() {
+        let config = reference();
+        let text = toml::to_string(&config).expect("serialises");
+        let again = load_str(&text, None, &PluginCatalog::builtin())
+            .unwrap_or_else(|diagnostics| panic!("{diagnostics:?}\n{text}"));
+        assert_eq!(config, again);
+    }
+
+    #[test]
+    fn capacity_from_mah_uses_the_nominal_pack_voltage() {
+        let battery = Battery {
+            capacity_wh: None,
+            capacity_mah: Some(5000.0),
+            cell_count: 4,
+            nominal_cell_voltage_v: None,
+        };
+        // 5 Ah × 4 × 3.7 V
+        assert!((battery.capacity_wh().unwrap() - 74.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn phase_flight_power_overrides_hover() {
+        let config = reference();
+        assert_eq!(config.flight.power_w("transit"), Some(190.0));
+        let hover_only = Flight {
+            hover_power_w: Some(150.0),
+            phase_power_w: BTreeMap::new(),
+        };
+        assert_eq!(hover_only.power_w("anything"), Some(150.0));
+    }
+
+    /// Any damage to the text gives a config or located errors, never a panic.
+    #[test]
+    fn damaged_text_never_panics() {
+        let bytes = REFERENCE.as_bytes();
+        let mut state: u64 = 12345;
+        let mut next = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) as usize
+        };
+        for _ in 0..2000 {
+            let mut damaged = bytes.to_vec();
+            let bytes_in: &[u8] = b"[]{}=\"'.,#\n 0-1";
+            for _ in 0..1 + next() % 4 {
+                let at = next() % damaged.len();
+                let byte = bytes_in[next() % bytes_in.len()];
+                match next() % 3 {
+                    0 => damaged[at] = byte,
+                    1 => {
+                        damaged.remove(at);
+                    }
+                    _ => damaged.insert(at, byte),
+                }
+            }
+            let text = String::from_utf8_lossy(&damaged);
+            if let Err(diagnostics) = load_str(&text, None, &PluginCatalog::builtin()) {
+                assert!(!diagnostics.is_empty());
+                for diagnostic in diagnostics {
+                    assert!(diagnostic.span.is_some(), "{diagnostic:?}");
+                }
+            }
+        }
+    }
+}

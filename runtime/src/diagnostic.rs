@@ -1,0 +1,137 @@
+//! Diagnostics that point into a source text: `FILE:LINE:COL: error: MESSAGE` plus the offending
+//! line with a caret, the way compilers report mistakes so editors can jump to them.
+
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::ops::Range;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Severity {
+    Error,
+    Warning,
+}
+
+/// One finding about a text, located by a byte span (`None` when it concerns the whole file).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Diagnostic {
+    pub severity: Severity,
+    pub span: Option<Range<usize>>,
+    pub message: String,
+}
+
+impl Diagnostic {
+    pub fn error(span: Option<Range<usize>>, message: impl Into<String>) -> Self {
+        Self {
+            severity: Severity::Error,
+            span,
+            message: message.into(),
+        }
+    }
+
+    pub fn warning(span: Option<Range<usize>>, message: impl Into<String>) -> Self {
+        Self {
+            severity: Severity::Warning,
+            span,
+            message: message.into(),
+        }
+    }
+
+    /// 1-based line and column (in characters) of the span's start in `source`.
+    pub fn line_col(&self, source: &str) -> (usize, usize) {
+        line_col(source, self.span.as_ref().map_or(0, |span| span.start))
+    }
+
+    /// Renders `FILE:LINE:COL: error: MESSAGE`, then the line and a caret under the span.
+    pub fn render(&self, file: &str, source: &str) -> String {
+        let (line, column) = self.line_col(source);
+        let severity = match self.severity {
+            Severity::Error => "error",
+            Severity::Warning => "warning",
+        };
+        let mut out = format!("{file}:{line}:{column}: {severity}: {}\n", self.message);
+        if let Some(text) = source.lines().nth(line - 1) {
+            let gutter = line.to_string();
+            let pad = " ".repeat(gutter.len());
+            let span_len = self.span.as_ref().map_or(1, |span| {
+                let end = span.end.min(source.len()).max(span.start);
+                source
+                    .get(span.start..end)
+                    .map_or(1, |s| s.lines().next().unwrap_or("").chars().count().max(1))
+            });
+            let _ = writeln!(out, "{pad} |");
+            let _ = writeln!(out, "{gutter} | {text}");
+            let _ = writeln!(
+                out,
+                "{pad} | {}{}",
+                " ".repeat(column - 1),
+                "^".repeat(span_len)
+            );
+        }
+        out
+    }
+
+    /// The diagnostic as a JSON-ready record.
+    pub fn to_record(&self, file: &str, source: &str) -> DiagnosticRecord {
+        let (line, column) = self.line_col(source);
+        DiagnosticRecord {
+            file: file.to_string(),
+            line,
+            column,
+            severity: self.severity,
+            message: self.message.clone(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DiagnosticRecord {
+    pub file: String,
+    pub line: usize,
+    pub column: usize,
+    pub severity: Severity,
+    pub message: String,
+}
+
+/// 1-based line and character column of byte `offset` (clamped to the text and to a char boundary).
+pub fn line_col(source: &str, offset: usize) -> (usize, usize) {
+    let mut offset = offset.min(source.len());
+    while !source.is_char_boundary(offset) {
+        offset -= 1;
+    }
+    let before = &source[..offset];
+    let line = before.matches('\n').count() + 1;
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    let column = source[line_start..offset].chars().count() + 1;
+    (line, column)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn line_and_column_count_characters_from_one() {
+        let text = "a = 1\nbé = 2\n";
+        assert_eq!(line_col(text, 0), (1, 1));
+        assert_eq!(line_col(text, 4), (1, 5));
+        assert_eq!(line_col(text, 6), (2, 1));
+        // 'é' is two bytes: the '=' after it is the 4th character of line 2.
+        let eq = text.rfind('=').unwrap();
+        assert_eq!(line_col(text, eq), (2, 4));
+        // Past the end clamps to the end.
+        assert_eq!(line_col(text, 1000), (3, 1));
+    }
+
+    #[test]
+    fn render_puts_the_caret_under_the_span() {
+        let text = "[mission]\nname = 42\n";
+        let start = text.find("42").unwrap();
+        let diagnostic = Diagnostic::error(Some(start..start + 2), "expected a string");
+        let rendered = diagnostic.render("qos.toml", text);
+        let lines: Vec<&str> = rendered.lines().collect();
+        assert_eq!(lines[0], "qos.toml:2:8: error: expected a string");
+        assert_eq!(lines[2], "2 | name = 42");
+        assert_eq!(lines[3], "  |        ^^");
+    }
+}
