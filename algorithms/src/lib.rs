@@ -1,0 +1,2 @@
+//! Pure computation for the mission, no I/O and no async: vision, estimation, control, tracking,
+//! stereo and the hazard CNN.
