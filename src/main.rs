@@ -1,8 +1,12 @@
 //! `qosrt`: the energy-aware QoS mission runtime's command line.
 
 mod check;
+mod model;
+mod plan;
+mod plot;
 
 use clap::{Parser, Subcommand};
+use power_models::grid::AxisScale;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -28,11 +32,83 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Describe a power profile's model, evaluate it at a point, measure its error.
+    Model {
+        /// A profile: the project's TOML format, or a powprofiler CSV (`.csv`).
+        profile: PathBuf,
+        /// Leave-one-out error of every measured point, and the mean (MAPE).
+        #[arg(long)]
+        loo: bool,
+        /// Evaluate at a point: one KNOB=VALUE per knob, e.g. --at hazard.rate_fps=2.
+        #[arg(long, value_name = "KNOB=VALUE")]
+        at: Vec<String>,
+        /// Interpolate on linear or log-scaled knob axes (default: log).
+        #[arg(long, value_parser = ["log", "linear"])]
+        scale: Option<String>,
+        /// Names of a powprofiler CSV's knob columns (200, 201, …), comma-separated.
+        #[arg(long, value_delimiter = ',', value_name = "NAMES")]
+        knob_names: Vec<String>,
+        /// Print the description as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Plan the mission's QoS levels offline to fit the battery.
+    Plan {
+        /// The mission config.
+        #[arg(default_value = "qos.toml")]
+        file: PathBuf,
+        /// Battery energy (Wh) instead of the config's capacity.
+        #[arg(long, value_name = "WH")]
+        battery_wh: Option<f64>,
+        /// Reserve fraction instead of the config's, in [0, 1).
+        #[arg(long, value_name = "FRACTION")]
+        reserve: Option<f64>,
+        /// Print the plan as JSON.
+        #[arg(long)]
+        json: bool,
+        /// Also write the Pareto frontier (utility against energy) as an SVG plot.
+        #[arg(long, value_name = "PATH")]
+        svg: Option<PathBuf>,
+    },
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Check { file, json } => check::run(&file, json),
+        Command::Model {
+            profile,
+            loo,
+            at,
+            scale,
+            knob_names,
+            json,
+        } => model::run(&model::ModelArgs {
+            profile,
+            loo,
+            at,
+            scale: scale.map(|s| {
+                if s == "linear" {
+                    AxisScale::Linear
+                } else {
+                    AxisScale::Log
+                }
+            }),
+            knob_names,
+            json,
+        }),
+        Command::Plan {
+            file,
+            battery_wh,
+            reserve,
+            json,
+            svg,
+        } => plan::run(&plan::PlanArgs {
+            file,
+            battery_wh,
+            reserve_fraction: reserve,
+            json,
+            svg,
+        }),
     }
 }

@@ -4,6 +4,7 @@
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::ops::Range;
+use std::path::PathBuf;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -81,6 +82,38 @@ impl Diagnostic {
             severity: self.severity,
             message: self.message.clone(),
         }
+    }
+}
+
+/// Diagnostics about one file, with the text they point into.
+#[derive(Debug, Clone)]
+pub struct FileReport {
+    pub path: PathBuf,
+    pub source: String,
+    pub diagnostics: Vec<Diagnostic>,
+}
+
+impl FileReport {
+    pub fn render(&self) -> String {
+        let file = self.path.display().to_string();
+        self.diagnostics
+            .iter()
+            .map(|diagnostic| diagnostic.render(&file, &self.source))
+            .collect()
+    }
+
+    pub fn records(&self) -> Vec<DiagnosticRecord> {
+        let file = self.path.display().to_string();
+        self.diagnostics
+            .iter()
+            .map(|diagnostic| diagnostic.to_record(&file, &self.source))
+            .collect()
+    }
+
+    pub fn has_errors(&self) -> bool {
+        self.diagnostics
+            .iter()
+            .any(|diagnostic| diagnostic.severity == Severity::Error)
     }
 }
 

@@ -6,7 +6,7 @@ use super::suggest::did_you_mean;
 use super::validate::{validate, PathSegment};
 use super::{Battery, Flight, Mission, MissionConfig, PowerModelConfig, TaskConfig};
 use crate::catalog::PluginCatalog;
-use crate::diagnostic::Diagnostic;
+use crate::diagnostic::{Diagnostic, FileReport};
 use serde::de::DeserializeOwned;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -31,22 +31,7 @@ impl LoadedConfig {
 }
 
 /// A config that did not load: every diagnostic found, with the text they point into.
-#[derive(Debug, Clone)]
-pub struct ConfigFailure {
-    pub path: PathBuf,
-    pub source: String,
-    pub diagnostics: Vec<Diagnostic>,
-}
-
-impl ConfigFailure {
-    pub fn render(&self) -> String {
-        let file = self.path.display().to_string();
-        self.diagnostics
-            .iter()
-            .map(|diagnostic| diagnostic.render(&file, &self.source))
-            .collect()
-    }
-}
+pub type ConfigFailure = FileReport;
 
 /// Reads, parses and checks a config file; relative profile paths resolve against its folder.
 pub fn load_file(path: &Path, plugins: &PluginCatalog) -> Result<LoadedConfig, ConfigFailure> {
@@ -311,6 +296,12 @@ fn explain_serde_message(message: &str, context: &str) -> String {
         .replace("expected a sequence", "expected an array")
         .replace("invalid value: integer", "invalid value")
         .replace("invalid type", "wrong type")
+}
+
+/// Span in config text of the value at `path` (see [`span_of`]), for checks made after loading.
+pub fn span_at(source: &str, path: &[PathSegment]) -> Range<usize> {
+    let (root, _) = DeTable::parse_recoverable(source);
+    span_of(&root, path)
 }
 
 /// Span of the value at `path`; where the path stops existing, the span of its deepest parent.

@@ -8,7 +8,7 @@ mod load;
 mod suggest;
 mod validate;
 
-pub use load::{load_file, load_str, ConfigFailure, LoadedConfig};
+pub use load::{load_file, load_str, span_at, ConfigFailure, LoadedConfig};
 pub use validate::{validate, ConfigIssue, PathSegment};
 
 use serde::{Deserialize, Serialize};
@@ -17,6 +17,10 @@ use std::fmt;
 
 /// Nominal LiPo cell voltage, used when a battery is given in mAh without a voltage.
 pub const DEFAULT_NOMINAL_CELL_VOLTAGE_V: f64 = 3.7;
+
+/// Internal resistance of one cell of a healthy drone LiPo (a few mΩ) plus its share of
+/// wiring and connectors, used when the config gives no pack resistance.
+pub const DEFAULT_CELL_RESISTANCE_OHM: f64 = 0.006;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -70,6 +74,13 @@ pub struct Battery {
     pub cell_count: u32,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub nominal_cell_voltage_v: Option<f64>,
+    /// Pack internal resistance (cells, wiring, connectors); default
+    /// [`DEFAULT_CELL_RESISTANCE_OHM`] per cell.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub internal_resistance_ohm: Option<f64>,
+    /// Cell voltage under load at which the flight must end; default 3.5 V.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub empty_cell_voltage_v: Option<f64>,
 }
 
 impl Battery {
@@ -77,6 +88,11 @@ impl Battery {
         self.nominal_cell_voltage_v
             .unwrap_or(DEFAULT_NOMINAL_CELL_VOLTAGE_V)
             * f64::from(self.cell_count)
+    }
+
+    pub fn internal_resistance_ohm(&self) -> f64 {
+        self.internal_resistance_ohm
+            .unwrap_or(DEFAULT_CELL_RESISTANCE_OHM * f64::from(self.cell_count))
     }
 
     /// Nominal energy content: `capacity_wh`, or `capacity_mah` × nominal pack voltage.
@@ -112,8 +128,35 @@ impl Flight {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PowerModelConfig {
+    /// The board's power with none of the tasks running. Needed where a phase is modelled by
+    /// several profiles: each then counts only its power above idle (an additive model).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub idle_power_w: Option<f64>,
+    /// Interpolation between a profile's grid points: on "log" or "linear" knob axes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axis_scale: Option<AxisScaleConfig>,
     #[serde(rename = "profile")]
     pub profiles: Vec<ProfileRef>,
+}
+
+impl PowerModelConfig {
+    /// The profiles that model `phase`, with their index in `profiles`.
+    pub fn profiles_for<'a>(
+        &'a self,
+        phase: &'a str,
+    ) -> impl Iterator<Item = (usize, &'a ProfileRef)> {
+        self.profiles
+            .iter()
+            .enumerate()
+            .filter(move |(_, profile)| profile.phases.iter().any(|p| p == phase))
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AxisScaleConfig {
+    Linear,
+    Log,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -242,6 +285,8 @@ mod tests {
             capacity_mah: Some(5000.0),
             cell_count: 4,
             nominal_cell_voltage_v: None,
+            internal_resistance_ohm: None,
+            empty_cell_voltage_v: None,
         };
         // 5 Ah × 4 × 3.7 V
         assert!((battery.capacity_wh().unwrap() - 74.0).abs() < 1e-12);

@@ -66,6 +66,7 @@ pub fn validate(config: &MissionConfig, plugins: &PluginCatalog) -> Vec<ConfigIs
     let root = Path::root();
     check_mission(config, &root.key("mission"), &mut issues);
     check_battery(config, &root.key("battery"), &mut issues);
+    check_battery_model(config, &root.key("battery"), &mut issues);
     check_flight(config, &root.key("flight"), &mut issues);
     check_power_model(config, &root.key("power_model"), &mut issues);
     check_tasks(config, plugins, &root.key("task"), &mut issues);
@@ -226,6 +227,31 @@ fn check_battery(config: &MissionConfig, path: &Path, issues: &mut Issues) {
     }
 }
 
+fn check_battery_model(config: &MissionConfig, path: &Path, issues: &mut Issues) {
+    let battery = &config.battery;
+    if let Some(resistance_ohm) = battery.internal_resistance_ohm {
+        if !(resistance_ohm.is_finite() && (0.0..1.0).contains(&resistance_ohm)) {
+            issues.push(
+                &path.key("internal_resistance_ohm"),
+                format!(
+                    "internal_resistance_ohm is the whole pack's, in ohms, within [0, 1) (a 4S drone pack is about 0.02), found {resistance_ohm}"
+                ),
+            );
+        }
+    }
+    if let Some(empty_v) = battery.empty_cell_voltage_v {
+        // Below 3.0 V a LiPo cell is damaged; above 4.0 V little charge would be usable.
+        if !(3.0..=4.0).contains(&empty_v) {
+            issues.push(
+                &path.key("empty_cell_voltage_v"),
+                format!(
+                    "empty_cell_voltage_v is per cell, under load, within [3.0, 4.0] V (3.5 is usual for LiPo), found {empty_v}"
+                ),
+            );
+        }
+    }
+}
+
 fn check_flight(config: &MissionConfig, path: &Path, issues: &mut Issues) {
     let flight = &config.flight;
     if let Some(hover_w) = flight.hover_power_w {
@@ -263,6 +289,29 @@ fn check_power_model(config: &MissionConfig, path: &Path, issues: &mut Issues) {
             &path.key("profile"),
             "the power model needs at least one [[power_model.profile]]",
         );
+    }
+    if let Some(idle_w) = config.power_model.idle_power_w {
+        check_positive(idle_w, "idle_power_w", &path.key("idle_power_w"), issues);
+    }
+    for phase in &config.mission.phases {
+        let count = config.power_model.profiles_for(&phase.name).count();
+        if count == 0 && !profiles.is_empty() {
+            issues.push(
+                &path.key("profile"),
+                format!(
+                    "no profile models phase `{}`: add it to the `phases` of a [[power_model.profile]]",
+                    phase.name
+                ),
+            );
+        } else if count > 1 && config.power_model.idle_power_w.is_none() {
+            issues.push(
+                path,
+                format!(
+                    "phase `{}` is modelled by {count} profiles, which add up only above the board's idle power: set `idle_power_w`",
+                    phase.name
+                ),
+            );
+        }
     }
     for (index, profile) in profiles.iter().enumerate() {
         let profile_path = path.key("profile").index(index);

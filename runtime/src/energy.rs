@@ -1,0 +1,454 @@
+//! The mission's energy model: the config's phases and tasks, the measured power profiles and
+//! the battery, assembled into the planner's problem. Used offline by `qosrt plan` and, in
+//! flight, by the governor.
+
+use crate::config::{AxisScaleConfig, LoadedConfig, MissionConfig, PathSegment};
+use crate::diagnostic::{Diagnostic, FileReport};
+use power_models::battery::BatterySpec;
+use power_models::grid::{AxisScale, GridModel};
+use power_models::planner::{DurationByLevel, PlanPhase, PlanProblem, PlanTask, PowerTerm};
+use power_models::profile::Profile;
+use std::path::PathBuf;
+
+/// A profile named by the config, loaded and turned into a grid model.
+#[derive(Debug, Clone)]
+pub struct LoadedProfile {
+    pub path: PathBuf,
+    pub profile: Profile,
+    pub model: GridModel,
+}
+
+/// The config and everything it refers to, ready for planning.
+#[derive(Debug, Clone)]
+pub struct MissionModel {
+    pub config: MissionConfig,
+    /// One per `[[power_model.profile]]`, in the config's order.
+    pub profiles: Vec<LoadedProfile>,
+    /// Located warnings about the config (levels outside a profile's grid, …).
+    pub warnings: Vec<Diagnostic>,
+}
+
+/// The interpolation scale the config asks for, or the crate's measured default.
+pub fn axis_scale(config: &MissionConfig) -> AxisScale {
+    match config.power_model.axis_scale {
+        Some(AxisScaleConfig::Linear) => AxisScale::Linear,
+        Some(AxisScaleConfig::Log) => AxisScale::Log,
+        None => AxisScale::default(),
+    }
+}
+
+/// Loads every profile the config names and checks that they fit the config's tasks. Errors
+/// come per file: the profile's own mistakes located in it, mismatches located in the config.
+pub fn load_mission_model(loaded: &LoadedConfig) -> Result<MissionModel, Vec<FileReport>> {
+    let config = &loaded.config;
+    let scale = axis_scale(config);
+    let mut reports = Vec::new();
+    let mut profiles = Vec::new();
+    for profile_ref in &config.power_model.profiles {
+        let path = loaded.base_dir().join(&profile_ref.path);
+        let report = |source: String, diagnostic: Diagnostic| FileReport {
+            path: path.clone(),
+            source,
+            diagnostics: vec![diagnostic],
+        };
+        let source = match std::fs::read_to_string(&path) {
+            Ok(source) => source,
+            Err(error) => {
+                let message = format!("cannot read the profile: {error}");
+                reports.push(report(String::new(), Diagnostic::error(None, message)));
+                continue;
+            }
+        };
+        let profile = match Profile::from_toml_str(&source) {
+            Ok(profile) => profile,
+            Err(error) => {
+                reports.push(report(source, Diagnostic::error(error.span, error.message)));
+                continue;
+            }
+        };
+        match GridModel::from_profile(&profile, scale) {
+            Ok(model) => profiles.push(LoadedProfile {
+                path,
+                profile,
+                model,
+            }),
+            Err(error) => reports.push(report(
+                source,
+                Diagnostic::error(None, format!("cannot build a model from it: {error}")),
+            )),
+        }
+    }
+    if !reports.is_empty() {
+        return Err(reports);
+    }
+    let (errors, warnings) = check_coverage(loaded, &profiles);
+    if !errors.is_empty() {
+        return Err(vec![FileReport {
+            path: loaded.path.clone(),
+            source: loaded.source.clone(),
+            diagnostics: errors,
+        }]);
+    }
+    Ok(MissionModel {
+        config: config.clone(),
+        profiles,
+        warnings,
+    })
+}
+
+/// Checks the profiles against the tasks: every knob a profile models belongs to a task with
+/// that knob, no task is modelled twice in one phase, and levels outside a profile's grid are
+/// flagged (the model clamps there). Returns (errors, warnings), located in the config.
+fn check_coverage(
+    loaded: &LoadedConfig,
+    profiles: &[LoadedProfile],
+) -> (Vec<Diagnostic>, Vec<Diagnostic>) {
+    let config = &loaded.config;
+    let root = &loaded.source;
+    let mut errors = Vec::new();
+    let mut warnings = Vec::new();
+    let profile_path = |index: usize| {
+        vec![
+            PathSegment::Key("power_model".into()),
+            PathSegment::Key("profile".into()),
+            PathSegment::Index(index),
+            PathSegment::Key("path".into()),
+        ]
+    };
+    for (index, loaded_profile) in profiles.iter().enumerate() {
+        for (axis, knob) in loaded_profile.profile.knobs.iter().enumerate() {
+            let task = config
+                .tasks
+                .iter()
+                .position(|task| &task.knob_name() == knob);
+            let Some(task_index) = task else {
+                let known: Vec<String> = config.tasks.iter().map(|t| t.knob_name()).collect();
+                errors.push(Diagnostic::error(
+                    Some(crate::config::span_at(root, &profile_path(index))),
+                    format!(
+                        "profile `{}` models knob `{knob}`, which no task has; the tasks' knobs are: {}",
+                        config.power_model.profiles[index].path,
+                        known.join(", ")
+                    ),
+                ));
+                continue;
+            };
+            let task = &config.tasks[task_index];
+            let grid = &loaded_profile.model.axes()[axis];
+            let (lo, hi) = (grid[0], grid[grid.len() - 1]);
+            for (level, value) in task.levels.iter().enumerate() {
+                if *value < lo || *value > hi {
+                    let path = vec![
+                        PathSegment::Key("task".into()),
+                        PathSegment::Index(task_index),
+                        PathSegment::Key("levels".into()),
+                        PathSegment::Index(level),
+                    ];
+                    warnings.push(Diagnostic::warning(
+                        Some(crate::config::span_at(root, &path)),
+                        format!(
+                            "{} = {value} lies outside profile `{}`'s measured range [{lo}, {hi}]: its power is clamped to the nearest measured value",
+                            task.knob_name(),
+                            config.power_model.profiles[index].path
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    for phase in &config.mission.phases {
+        let mut seen: Vec<&str> = Vec::new();
+        for (index, _) in config.power_model.profiles_for(&phase.name) {
+            let Some(loaded_profile) = profiles.get(index) else {
+                continue;
+            };
+            for knob in &loaded_profile.profile.knobs {
+                if seen.contains(&knob.as_str()) {
+                    errors.push(Diagnostic::error(
+                        Some(crate::config::span_at(root, &profile_path(index))),
+                        format!(
+                            "knob `{knob}` is modelled twice in phase `{}`: an additive model needs each task in one profile",
+                            phase.name
+                        ),
+                    ));
+                }
+                seen.push(knob);
+            }
+        }
+    }
+    (errors, warnings)
+}
+
+impl MissionModel {
+    /// The planner's problem: tasks with their utilities and weights; per phase the flight
+    /// power, the duration (per level where the config says so) and the companion power as
+    /// tables over the levels of the tasks each profile models.
+    ///
+    /// A task that does not run in a phase but appears in its profile is held at the profile's
+    /// lowest measured value, the measured state closest to not running.
+    pub fn plan_problem(&self) -> PlanProblem {
+        let config = &self.config;
+        let tasks = config
+            .tasks
+            .iter()
+            .map(|task| PlanTask {
+                name: task.name.clone(),
+                utility: task.utility.clone(),
+                weight: task.weight,
+            })
+            .collect();
+        let phases = config
+            .mission
+            .phases
+            .iter()
+            .map(|phase| {
+                let active_tasks: Vec<usize> = (0..config.tasks.len())
+                    .filter(|&t| config.tasks[t].runs_in(&phase.name))
+                    .collect();
+                let phase_profiles: Vec<&LoadedProfile> = config
+                    .power_model
+                    .profiles_for(&phase.name)
+                    .filter_map(|(index, _)| self.profiles.get(index))
+                    .collect();
+                // One profile is the board's whole power; several add up above idle.
+                let idle_w = if phase_profiles.len() > 1 {
+                    config.power_model.idle_power_w.unwrap_or(0.0)
+                } else {
+                    0.0
+                };
+                let mut base_power_w = idle_w;
+                let mut terms = Vec::new();
+                for loaded_profile in phase_profiles {
+                    let (term_tasks, power_w) = self.power_table(loaded_profile, &active_tasks);
+                    let above_idle = power_w.iter().map(|p| p - idle_w);
+                    if term_tasks.is_empty() {
+                        base_power_w += above_idle.sum::<f64>();
+                    } else {
+                        terms.push(PowerTerm {
+                            tasks: term_tasks,
+                            power_w: above_idle.collect(),
+                        });
+                    }
+                }
+                PlanPhase {
+                    name: phase.name.clone(),
+                    duration_s: phase.duration_s,
+                    duration_by_level: phase.duration_by_level.as_ref().and_then(|by_level| {
+                        Some(DurationByLevel {
+                            task: config.tasks.iter().position(|t| t.name == by_level.task)?,
+                            duration_s: by_level.duration_s.clone(),
+                        })
+                    }),
+                    flight_power_w: config.flight.power_w(&phase.name).unwrap_or(0.0),
+                    base_power_w,
+                    active_tasks,
+                    terms,
+                }
+            })
+            .collect();
+        PlanProblem { tasks, phases }
+    }
+
+    /// The power of every combination of levels of the active tasks a profile models
+    /// (row-major, first task slowest), and those tasks' indices.
+    fn power_table(&self, loaded: &LoadedProfile, active_tasks: &[usize]) -> (Vec<usize>, Vec<f64>) {
+        let config = &self.config;
+        let axes = loaded.model.axes();
+        // For each profile knob: the active task that sets it, if any.
+        let knob_tasks: Vec<Option<usize>> = loaded
+            .profile
+            .knobs
+            .iter()
+            .map(|knob| {
+                active_tasks
+                    .iter()
+                    .copied()
+                    .find(|&t| &config.tasks[t].knob_name() == knob)
+            })
+            .collect();
+        let term_tasks: Vec<usize> = knob_tasks.iter().flatten().copied().collect();
+        let level_counts: Vec<usize> = term_tasks
+            .iter()
+            .map(|&t| config.tasks[t].levels.len())
+            .collect();
+        let combinations: usize = level_counts.iter().product();
+        let mut table = Vec::with_capacity(combinations);
+        let mut levels = vec![0usize; term_tasks.len()];
+        for _ in 0..combinations {
+            let point: Vec<f64> = knob_tasks
+                .iter()
+                .enumerate()
+                .map(|(axis, task)| match task {
+                    Some(t) => {
+                        let position = term_tasks.iter().position(|x| x == t).unwrap_or(0);
+                        config.tasks[*t].levels[levels[position]]
+                    }
+                    None => axes[axis][0],
+                })
+                .collect();
+            table.push(loaded.model.eval(&point).value);
+            // Advance the mixed-radix counter, last task fastest.
+            for position in (0..levels.len()).rev() {
+                levels[position] += 1;
+                if levels[position] < level_counts[position] {
+                    break;
+                }
+                levels[position] = 0;
+            }
+        }
+        (term_tasks, table)
+    }
+
+    /// The pack as the config describes it, with `capacity_wh` overriding its capacity.
+    pub fn battery_spec(&self, capacity_wh: Option<f64>) -> Result<BatterySpec, String> {
+        let battery = &self.config.battery;
+        let nominal_v = battery.nominal_voltage_v() / f64::from(battery.cell_count);
+        let resistance_ohm = battery.internal_resistance_ohm();
+        let spec = match (capacity_wh, battery.capacity_mah) {
+            (None, Some(mah)) => {
+                BatterySpec::from_capacity_mah(mah, battery.cell_count, nominal_v, resistance_ohm)
+            }
+            (wh, _) => BatterySpec::from_capacity_wh(
+                wh.or(battery.capacity_wh).unwrap_or(0.0),
+                battery.cell_count,
+                nominal_v,
+                resistance_ohm,
+            ),
+        }
+        .map_err(|error| format!("battery: {error}"))?;
+        match battery.empty_cell_voltage_v {
+            Some(empty_v) => spec
+                .with_empty_cell_voltage_v(empty_v)
+                .map_err(|error| format!("battery: {error}")),
+            None => Ok(spec),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::catalog::PluginCatalog;
+    use crate::config::load_file;
+    use power_models::planner::solve;
+    use std::path::Path;
+
+    fn reference_model() -> MissionModel {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../qos.toml");
+        let loaded = load_file(&path, &PluginCatalog::builtin()).expect("reference config");
+        load_mission_model(&loaded).expect("reference profiles")
+    }
+
+    /// Advances a mixed-radix counter (last digit fastest); false once it wraps around.
+    fn next_combination(levels: &mut [usize], counts: &[usize]) -> bool {
+        for position in (0..levels.len()).rev() {
+            levels[position] += 1;
+            if levels[position] < counts[position] {
+                return true;
+            }
+            levels[position] = 0;
+        }
+        false
+    }
+
+    /// Every plan of the reference mission by enumeration, each as (energy_wh, utility),
+    /// with the companion power read straight from the profiles' models.
+    fn brute_force(model: &MissionModel) -> Vec<(f64, f64)> {
+        let config = &model.config;
+        let mut plans = vec![(0.0, 0.0)];
+        for phase in &config.mission.phases {
+            let active: Vec<usize> = (0..config.tasks.len())
+                .filter(|&t| config.tasks[t].runs_in(&phase.name))
+                .collect();
+            let counts: Vec<usize> = active.iter().map(|&t| config.tasks[t].levels.len()).collect();
+            let mut options = Vec::new();
+            let mut levels = vec![0; active.len()];
+            loop {
+                let level_of = |task: usize| active.iter().position(|&t| t == task).map(|i| levels[i]);
+                let mut companion_w = 0.0;
+                for (index, _) in config.power_model.profiles_for(&phase.name) {
+                    let loaded = &model.profiles[index];
+                    let point: Vec<f64> = loaded
+                        .profile
+                        .knobs
+                        .iter()
+                        .enumerate()
+                        .map(|(axis, knob)| {
+                            let task = config.tasks.iter().position(|t| &t.knob_name() == knob).unwrap();
+                            match level_of(task) {
+                                Some(level) => config.tasks[task].levels[level],
+                                None => loaded.model.axes()[axis][0],
+                            }
+                        })
+                        .collect();
+                    companion_w += loaded.model.eval(&point).value;
+                }
+                let duration_s = match &phase.duration_by_level {
+                    Some(by_level) => {
+                        let task = config.tasks.iter().position(|t| t.name == by_level.task).unwrap();
+                        by_level.duration_s[level_of(task).unwrap()]
+                    }
+                    None => phase.duration_s,
+                };
+                let flight_w = config.flight.power_w(&phase.name).unwrap();
+                let utility: f64 = active
+                    .iter()
+                    .map(|&t| config.tasks[t].weight * config.tasks[t].utility[level_of(t).unwrap()])
+                    .sum();
+                options.push((duration_s * (flight_w + companion_w) / 3600.0, utility));
+                if !next_combination(&mut levels, &counts) {
+                    break;
+                }
+            }
+            plans = plans
+                .iter()
+                .flat_map(|&(e, u)| options.iter().map(move |&(oe, ou)| (e + oe, u + ou)))
+                .collect();
+        }
+        plans
+    }
+
+    #[test]
+    fn the_reference_plan_is_the_brute_force_optimum_at_every_budget() {
+        let model = reference_model();
+        let problem = model.plan_problem();
+        let plans = brute_force(&model);
+        let (min_wh, max_wh) = plans
+            .iter()
+            .fold((f64::INFINITY, 0.0_f64), |(lo, hi), p| (lo.min(p.0), hi.max(p.0)));
+        for step in 0..=40 {
+            let budget_wh = min_wh - 0.1 + (max_wh - min_wh + 0.2) * f64::from(step) / 40.0;
+            let plan = solve(&problem, budget_wh).unwrap();
+            let best = plans
+                .iter()
+                .filter(|p| p.0 <= budget_wh)
+                .map(|p| p.1)
+                .fold(None, |best: Option<f64>, u| Some(best.map_or(u, |b| b.max(u))));
+            match best {
+                None => assert!(!plan.feasible, "budget {budget_wh}"),
+                Some(best) => {
+                    assert!(plan.feasible, "budget {budget_wh}");
+                    assert!((plan.utility - best).abs() < 1e-9, "budget {budget_wh}: {} vs {best}", plan.utility);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn inactive_profile_knobs_sit_at_the_lowest_measured_value() {
+        let model = reference_model();
+        let problem = model.plan_problem();
+        // Transit runs only the hazard CNN; its profile also models marker detection, held at
+        // the profile's lowest rate (0.5 fps in the seed grid).
+        let transit = &problem.phases[0];
+        assert_eq!(transit.name, "transit");
+        let hazard = model.config.tasks.iter().position(|t| t.name == "hazard").unwrap();
+        assert_eq!(transit.terms.len(), 1);
+        assert_eq!(transit.terms[0].tasks, vec![hazard]);
+        let tracking_profile = &model.profiles[0];
+        for (level, value) in model.config.tasks[hazard].levels.iter().enumerate() {
+            let expected = tracking_profile.model.eval(&[*value, 0.5]).value;
+            assert_eq!(transit.terms[0].power_w[level], expected);
+        }
+    }
+}
