@@ -42,7 +42,7 @@ enum Command {
         /// Evaluate at a point: one KNOB=VALUE per knob, e.g. --at hazard.rate_fps=2.
         #[arg(long, value_name = "KNOB=VALUE")]
         at: Vec<String>,
-        /// Interpolate on linear or log-scaled knob axes (default: log).
+        /// Interpolate on linear or log-scaled knob axes (default: linear, the better on the seed data).
         #[arg(long, value_parser = ["log", "linear"])]
         scale: Option<String>,
         /// Names of a powprofiler CSV's knob columns (200, 201, …), comma-separated.

@@ -169,7 +169,10 @@ fn evaluate(model: &GridModel, pairs: &[String]) -> Result<PointEvaluation, Stri
         .map(|(n, _)| n.as_str())
         .collect();
     if !missing.is_empty() {
-        return Err(format!("--at: give a value for every knob; missing: {}", missing.join(", ")));
+        return Err(format!(
+            "--at: give a value for every knob; missing: {}",
+            missing.join(", ")
+        ));
     }
     let point: Vec<f64> = point.into_iter().flatten().collect();
     let evaluation = model.try_eval(&point).map_err(|e| e.to_string())?;

@@ -42,7 +42,10 @@ pub fn run(args: &PlanArgs) -> ExitCode {
         }
     };
     for warning in &model.warnings {
-        eprint!("{}", warning.render(&loaded.path.display().to_string(), &loaded.source));
+        eprint!(
+            "{}",
+            warning.render(&loaded.path.display().to_string(), &loaded.source)
+        );
     }
     let report = match plan_report(&model, args) {
         Ok(report) => report,
@@ -136,7 +139,9 @@ fn plan_report(model: &MissionModel, args: &PlanArgs) -> Result<PlanReport, Stri
     }
     if let Some(wh) = args.battery_wh {
         if !(wh.is_finite() && wh > 0.0) {
-            return Err(format!("--battery-wh must be a positive energy, found {wh}"));
+            return Err(format!(
+                "--battery-wh must be a positive energy, found {wh}"
+            ));
         }
     }
     let problem = model.plan_problem();
@@ -144,9 +149,7 @@ fn plan_report(model: &MissionModel, args: &PlanArgs) -> Result<PlanReport, Stri
     let spec = model.battery_spec(args.battery_wh)?;
     // The pack delivers less the harder it is driven; rating it at the most demanding plan's
     // mean power keeps the budget on the safe side for every plan.
-    let heaviest = frontier
-        .last()
-        .ok_or("the mission has no possible plan")?;
+    let heaviest = frontier.last().ok_or("the mission has no possible plan")?;
     let heaviest_duration_s: f64 = heaviest.phases.iter().map(|p| p.duration_s).sum();
     let heaviest_power_w = heaviest.energy_wh * 3600.0 / heaviest_duration_s.max(1e-9);
     let usable_wh = spec
@@ -191,7 +194,11 @@ fn report_of(
         .flat_map(|phase| config.tasks.iter().filter(|t| t.runs_in(&phase.name)))
         .map(|task| task.weight * task.utility.iter().copied().fold(0.0, f64::max))
         .sum();
-    let modelled: Vec<&String> = model.profiles.iter().flat_map(|p| &p.profile.knobs).collect();
+    let modelled: Vec<&String> = model
+        .profiles
+        .iter()
+        .flat_map(|p| &p.profile.knobs)
+        .collect();
     PlanReport {
         mission: config.mission.name.clone(),
         feasible: plan.feasible,
@@ -207,7 +214,11 @@ fn report_of(
         duration_s,
         endurance_s: available_wh / mean_power_w * 3600.0,
         min_energy_wh: plan.min_energy_wh,
-        phases: plan.phases.iter().map(|p| phase_report(config, p)).collect(),
+        phases: plan
+            .phases
+            .iter()
+            .map(|p| phase_report(config, p))
+            .collect(),
         unmodelled_tasks: config
             .tasks
             .iter()
@@ -320,7 +331,10 @@ fn write_svg(report: &PlanReport, config: &MissionConfig, path: &Path) -> Result
         .iter()
         .map(|p| (p.energy_wh, p.utility))
         .collect();
-    let title = format!("{}: QoS utility against mission energy", config.mission.name);
+    let title = format!(
+        "{}: QoS utility against mission energy",
+        config.mission.name
+    );
     let svg = frontier_svg(&FrontierPlot {
         title: &title,
         frontier: &frontier,

@@ -275,6 +275,32 @@ const BAD_CASES: &[BadCase] = &[
         )],
     },
     BadCase {
+        name: "a phase no profile models",
+        replace: &[(
+            "phases = [\"transit\", \"tracking\"]\n",
+            "phases = [\"tracking\"]\n",
+        )],
+        expect: &[at(
+            "[[power_model.profile]]",
+            0,
+            "no profile models phase `transit`",
+        )],
+    },
+    BadCase {
+        name: "two profiles for a phase without the idle power",
+        replace: &[("phases = [\"landing\"]\n", "phases = [\"landing\", \"tracking\"]\n")],
+        expect: &[at(
+            "[power_model]\n",
+            0,
+            "phase `tracking` is modelled by 2 profiles, which add up only above the board's idle power: set `idle_power_w`",
+        )],
+    },
+    BadCase {
+        name: "pack resistance in milliohms",
+        replace: &[("internal_resistance_ohm = 0.025", "internal_resistance_ohm = 25")],
+        expect: &[at("25 #", 0, "internal_resistance_ohm is the whole pack's, in ohms")],
+    },
+    BadCase {
         name: "every mistake is listed, not only the first",
         replace: &[
             ("reserve_fraction = 0.25", "reserve_fraction = 2.5"),

@@ -48,12 +48,15 @@ fn the_reference_plan_fits_and_adds_up() {
     let config = reference();
     let tasks = config["task"].as_array().unwrap();
     let phases = plan["phases"].as_array().unwrap();
-    assert_eq!(phases.len(), config["mission"]["phase"].as_array().unwrap().len());
+    assert_eq!(
+        phases.len(),
+        config["mission"]["phase"].as_array().unwrap().len()
+    );
     let mut total_wh = 0.0;
     for phase in phases {
         let duration_s = phase["duration_s"].as_f64().unwrap();
-        let power_w =
-            phase["companion_power_w"].as_f64().unwrap() + phase["flight_power_w"].as_f64().unwrap();
+        let power_w = phase["companion_power_w"].as_f64().unwrap()
+            + phase["flight_power_w"].as_f64().unwrap();
         let phase_wh = phase["energy_wh"].as_f64().unwrap();
         assert!((phase_wh - duration_s * power_w / 3600.0).abs() < 1e-9);
         total_wh += phase_wh;
@@ -95,7 +98,10 @@ fn more_battery_never_lowers_the_utility_and_enough_buys_everything() {
         let (code, plan) = plan_json(&["--battery-wh", battery_wh]);
         assert_eq!(code, Some(0), "{battery_wh} Wh: {plan}");
         let utility = plan["utility"].as_f64().unwrap();
-        assert!(utility >= previous, "{battery_wh} Wh: {utility} < {previous}");
+        assert!(
+            utility >= previous,
+            "{battery_wh} Wh: {utility} < {previous}"
+        );
         previous = utility;
         first.get_or_insert(utility);
     }
@@ -159,7 +165,10 @@ fn a_profile_knob_no_task_has_is_an_error_in_the_config() {
             &format!("path = \"{}/profiles/", repo_root().display()),
         )
         .replacen(
-            &format!("{}/profiles/jetson-nano-seed/landing.toml", repo_root().display()),
+            &format!(
+                "{}/profiles/jetson-nano-seed/landing.toml",
+                repo_root().display()
+            ),
             profile.to_str().unwrap(),
             1,
         );
@@ -194,7 +203,10 @@ fn a_broken_profile_is_located_in_the_profile() {
             &format!("path = \"{}/profiles/", repo_root().display()),
         )
         .replacen(
-            &format!("{}/profiles/jetson-nano-seed/landing.toml", repo_root().display()),
+            &format!(
+                "{}/profiles/jetson-nano-seed/landing.toml",
+                repo_root().display()
+            ),
             profile.to_str().unwrap(),
             1,
         );
@@ -224,12 +236,11 @@ fn model_evaluates_at_grid_points_and_reports_loo() {
     ]);
     assert_eq!(output.status.code(), Some(0));
     let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
-    let profile: toml::Table = std::fs::read_to_string(
-        repo_root().join("profiles/jetson-nano-seed/tracking.toml"),
-    )
-    .unwrap()
-    .parse()
-    .unwrap();
+    let profile: toml::Table =
+        std::fs::read_to_string(repo_root().join("profiles/jetson-nano-seed/tracking.toml"))
+            .unwrap()
+            .parse()
+            .unwrap();
     let measured = profile["sample"]
         .as_array()
         .unwrap()
@@ -263,7 +274,10 @@ fn model_evaluates_at_grid_points_and_reports_loo() {
         "detection.rate_fps=10",
     ]);
     let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(stdout.contains("extrapolated: hazard.rate_fps clamped"), "{stdout}");
+    assert!(
+        stdout.contains("extrapolated: hazard.rate_fps clamped"),
+        "{stdout}"
+    );
 
     // A knob the model lacks is a clear error.
     let output = qosrt(&[
@@ -273,5 +287,7 @@ fn model_evaluates_at_grid_points_and_reports_loo() {
         "radar.rate_fps=1",
     ]);
     assert_eq!(output.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&output.stderr).contains("the model has no knob `radar.rate_fps`"));
+    assert!(
+        String::from_utf8_lossy(&output.stderr).contains("the model has no knob `radar.rate_fps`")
+    );
 }

@@ -461,7 +461,7 @@ impl BatterySpec {
     /// `n·OCV·I − R·I² = P`. None when the pack cannot deliver that power at all
     /// (`P > (n·OCV)²/4R`) or `power_w` is negative or not finite.
     pub fn current_for_power_a(&self, soc: f64, power_w: f64) -> Option<f64> {
-        if !(power_w.is_finite() && power_w >= 0.0) || !soc.is_finite() {
+        if !(power_w.is_finite() && power_w >= 0.0 && soc.is_finite()) {
             return None;
         }
         let e = self.pack_ocv_v(soc);
@@ -473,7 +473,8 @@ impl BatterySpec {
         Some(2.0 * power_w / (e + disc.sqrt()))
     }
 
-    /// Terminal voltage while delivering `power_w` at `soc` (the high root), if deliverable.
+    /// Terminal voltage while delivering `power_w` at `soc` (the high root); beyond the
+    /// maximum power it gives the maximum-power-point voltage E/2.
     fn terminal_voltage_at_power_v(&self, soc: f64, power_w: f64) -> f64 {
         let e = self.pack_ocv_v(soc);
         let disc = (e * e - 4.0 * self.internal_resistance_ohm * power_w).max(0.0);
@@ -664,10 +665,10 @@ impl Default for EstimatorConfig {
         Self {
             voltage_sigma_cell_v: 0.02,
             load_compensation_rel_sigma: 0.3,
-            unknown_load_sigma_cell_v: 0.1,
+            unknown_load_sigma_cell_v: 0.15,
             voltage_correlation_s: 20.0,
             coulomb_rel_sigma: 0.05,
-            blind_soc_sigma_per_sqrt_s: 0.03,
+            blind_soc_sigma_per_sqrt_s: 0.01,
             remaining_fraction_sigma: 0.1,
             max_gap_s: 5.0,
             gap_rel_sigma: 0.5,
@@ -682,7 +683,6 @@ impl EstimatorConfig {
     /// Checks every field; the error names the first bad one.
     pub fn validate(&self) -> Result<(), BatteryError> {
         let non_negative = [
-            ("voltage_sigma_cell_v", self.voltage_sigma_cell_v),
             (
                 "load_compensation_rel_sigma",
                 self.load_compensation_rel_sigma,
@@ -705,7 +705,9 @@ impl EstimatorConfig {
                 });
             }
         }
+        // A zero sigma on a measurement would make it infinitely certain.
         let positive = [
+            ("voltage_sigma_cell_v", self.voltage_sigma_cell_v),
             ("remaining_fraction_sigma", self.remaining_fraction_sigma),
             ("max_gap_s", self.max_gap_s),
             ("power_filter_tau_s", self.power_filter_tau_s),
@@ -719,14 +721,6 @@ impl EstimatorConfig {
                     expected: "a finite value > 0",
                 });
             }
-        }
-        // Voltage and voltage-sigma zero would make a measurement infinitely certain.
-        if self.voltage_sigma_cell_v == 0.0 {
-            return Err(BatteryError::InvalidArgument {
-                name: "voltage_sigma_cell_v",
-                value: 0.0,
-                expected: "a finite value > 0",
-            });
         }
         check_soc("initial_soc", self.initial_soc)
     }
@@ -766,7 +760,10 @@ pub struct BatteryEstimate {
     pub soc_sigma: f64,
     /// Charge counted by this estimator since its first sample (its own integral).
     pub consumed_mah: f64,
-    /// Energy still deliverable at the present (filtered) power before the cutoff voltage.
+    /// Energy still deliverable before the cutoff voltage if the present (filtered) power
+    /// were held. It follows the load: a climb burst near the cutoff drops it to 0, as the
+    /// pack would at that power. To plan, ask [`BatteryEstimator::remaining_energy_wh_at`]
+    /// with the mission's mean power.
     pub remaining_energy_wh: f64,
     /// Filtered V·I; 0 until a sample gives both voltage and current.
     pub power_w: f64,
@@ -1167,13 +1164,14 @@ impl Px4BatteryRow {
     /// or less (no battery), a negative current, discharged charge or remaining (-1).
     /// Non-finite values pass through, so the estimator reports them.
     pub fn to_sample(&self) -> BatterySample {
-        let keep = |v: f64, known: bool| if known { Some(v) } else { None };
+        // NaN is kept (and reported by the estimator), only PX4's sentinels are dropped.
+        let known_if = |v: f64, known: bool| (known || v.is_nan()).then_some(v);
         BatterySample {
             time_s: self.time_s(),
-            voltage_v: keep(self.voltage_v, !(self.voltage_v <= 0.0)),
-            current_a: keep(self.current_a, !(self.current_a < 0.0)),
-            consumed_mah: keep(self.discharged_mah, !(self.discharged_mah < 0.0)),
-            remaining_fraction: keep(self.remaining, !(self.remaining < 0.0)),
+            voltage_v: known_if(self.voltage_v, self.voltage_v > 0.0),
+            current_a: known_if(self.current_a, self.current_a >= 0.0),
+            consumed_mah: known_if(self.discharged_mah, self.discharged_mah >= 0.0),
+            remaining_fraction: known_if(self.remaining, self.remaining >= 0.0),
         }
     }
 }
@@ -1462,18 +1460,29 @@ mod tests {
         }
     }
 
-    /// Discharge at constant power in small time steps (midpoint rule), independent of the
-    /// quadrature: returns (energy to the load Wh, I²R loss Wh, final soc).
-    fn brute_force_discharge(
-        points: &[(f64, f64)],
+    /// A LiPo-curve pack for the brute-force simulation, described by plain numbers.
+    struct SimPack {
         cells: f64,
         r: f64,
         cap_ah: f64,
         cutoff_v: f64,
+    }
+
+    /// Discharge at constant power in small time steps (midpoint rule), independent of the
+    /// quadrature: returns (energy to the load Wh, I²R loss Wh, final soc).
+    fn brute_force_discharge(
+        pack: &SimPack,
         power_w: f64,
         from_soc: f64,
         to_soc: f64,
     ) -> (f64, f64, f64) {
+        let SimPack {
+            cells,
+            r,
+            cap_ah,
+            cutoff_v,
+        } = *pack;
+        let points = &LIPO_OCV_POINTS;
         let dt = 0.01;
         let current = |soc: f64| {
             let e = cells * interp(points, soc);
@@ -1487,8 +1496,7 @@ mod tests {
             })
         };
         let (mut soc, mut energy_j, mut loss_j) = (from_soc, 0.0, 0.0);
-        loop {
-            let Some(i0) = current(soc) else { break };
+        while let Some(i0) = current(soc) {
             if cells * interp(points, soc) - i0 * r < cutoff_v {
                 break;
             }
@@ -1517,28 +1525,50 @@ mod tests {
         let lossless = lipo_4s(5000.0, 0.0);
         for (power_w, from, to) in [(250.0, 0.95, 0.0), (500.0, 1.0, 0.2), (60.0, 0.7, 0.1)] {
             let got = spec.usable_energy_wh(power_w, from, to).unwrap();
-            let (energy, loss, _) =
-                brute_force_discharge(&LIPO_OCV_POINTS, 4.0, 0.06, 5.0, 14.0, power_w, from, to);
+            let (energy, loss, _) = brute_force_discharge(
+                &SimPack {
+                    cells: 4.0,
+                    r: 0.06,
+                    cap_ah: 5.0,
+                    cutoff_v: 14.0,
+                },
+                power_w,
+                from,
+                to,
+            );
             assert!(
                 (got - energy).abs() < 2e-4 * energy,
                 "P {power_w}: {got} vs {energy}"
             );
-            // Energy balance: what left the cells = load + I²R, and is at most the lossless
-            // energy over the same SoC span.
-            let (cut, _) = (spec.cutoff_soc(power_w).unwrap().unwrap(), 0);
+            // Energy balance: the energy that left the cells over the same SoC span
+            // (C·∫OCV, the lossless pack's) is what the load got plus the simulated I²R loss.
+            let cut = spec.cutoff_soc(power_w).unwrap().unwrap();
             let chemical = lossless.usable_energy_wh(0.0, from, to.max(cut)).unwrap();
-            let chemical_from_ocv: f64 = chemical;
+            eprintln!(
+                "P {power_w} W: quadrature {got:.4} Wh, simulation {energy:.4} Wh, \
+                 loss {loss:.3} Wh, chemical {chemical:.4} Wh"
+            );
+            assert!(loss > 0.0);
             assert!(
-                (got + loss - chemical_from_ocv).abs() < 2e-3 * chemical_from_ocv,
-                "P {power_w}: {got} + {loss} vs {chemical_from_ocv}"
+                (got + loss - chemical).abs() < 2e-4 * chemical,
+                "P {power_w}: {got} + {loss} vs {chemical}"
             );
         }
         // A load near the pack's maximum power: the power limit, not the cutoff voltage, ends
         // the discharge (R = 1 Ω, cutoff 1 V/cell, max power 70.6 W when full).
         let weak = lipo_4s(5000.0, 1.0).with_empty_cell_voltage_v(1.0).unwrap();
         let got = weak.usable_energy_wh(50.0, 1.0, 0.0).unwrap();
-        let (energy, _, soc_end) =
-            brute_force_discharge(&LIPO_OCV_POINTS, 4.0, 1.0, 5.0, 4.0, 50.0, 1.0, 0.0);
+        let (energy, _, soc_end) = brute_force_discharge(
+            &SimPack {
+                cells: 4.0,
+                r: 1.0,
+                cap_ah: 5.0,
+                cutoff_v: 4.0,
+            },
+            50.0,
+            1.0,
+            0.0,
+        );
         assert!((got - energy).abs() < 2e-3 * energy, "{got} vs {energy}");
         let cut = weak.cutoff_soc(50.0).unwrap().unwrap();
         assert!(
@@ -1712,9 +1742,10 @@ mod tests {
 
     #[test]
     fn voltage_only_telemetry_still_tracks_soc() {
-        // No current, no consumed charge: SoC from uncompensated voltage alone. The error is
-        // bounded by the unseen sag (12 A·0.02 Ω/4 = 0.06 V/cell ≈ 0.08 SoC on the LiPo curve)
-        // plus the lag of the smoothing.
+        // No current, no consumed charge: SoC from uncompensated voltage alone. The unseen sag
+        // (12 A·0.02 Ω/4 = 0.06 V/cell) reads 0.07 to 0.2 SoC low, depending on the curve's
+        // slope; the smoothing (voltage sigma widened for the unknown load) averages the
+        // bursts out and lags the other way. The bound says it stays usable, not exact.
         let truth = lipo_4s(5000.0, 0.02);
         let mut flight = synthetic_flight(&truth, 0.9, 600.0, 11);
         for s in &mut flight.samples {
@@ -2245,6 +2276,7 @@ mod tests {
             .iter()
             .map(|r| est.update(r.to_sample()).unwrap())
             .collect::<Vec<_>>();
+        // PX4_TRACE=1 prints the run every 100 rows.
         if std::env::var_os("PX4_TRACE").is_some() {
             for (r, e) in rows.iter().zip(&estimates).step_by(100) {
                 eprintln!("{:8.1} V {:6.3} I {:6.2} soc {:.4} sig {:.4} vsoc {:.4} rem {:.4} E {:.1} P {:.1}", r.time_s() - rows[0].time_s(), r.voltage_v, r.current_a, e.soc, e.soc_sigma, e.voltage_soc.unwrap_or(f64::NAN), r.remaining, e.remaining_energy_wh, e.power_w);
@@ -2346,15 +2378,32 @@ mod tests {
         let mean_rem =
             |sel: &[usize]| sel.iter().map(|&k| rows[k].remaining).sum::<f64>() / sel.len() as f64;
         let inflation = mean_rem(&flight_tail) - mean_rem(&rest);
-        let first = &estimates[0];
+        // PX4 computes `scale = v_charged / (v_empty + (v_charged - v_empty)·soc_voltage)` from
+        // its voltage-only SoC; if `remaining` is that SoC, 1/scale = r + a·(1 - r) holds with
+        // one constant a = v_empty / v_charged on every row.
+        let ratios: Vec<f64> = rows
+            .iter()
+            .filter(|r| r.remaining < 0.99)
+            .filter_map(|r| Some((1.0 / r.scale? - r.remaining) / (1.0 - r.remaining)))
+            .collect();
+        let (a_min, a_max) = ratios
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &a| {
+                (lo.min(a), hi.max(a))
+            });
+        let t_settled = rows[0].time_s() + 60.0;
+        let settled = rows.iter().position(|r| r.time_s() >= t_settled).unwrap();
+        let first = &estimates[settled];
         let last = &estimates[estimates.len() - 1];
         eprintln!(
             "PX4 log SoC (ours - remaining): all {n_all} rows RMS {rms_all:.3} max {max_all:.3} mean {mean_all:+.3}; \
              unclipped in flight {n_unc} rows RMS {rms_unc:.3} max {max_unc:.3} mean {mean_unc:+.3}; \
              at rest after landing {n_rest} rows RMS {rms_rest:.3} max {max_rest:.3} mean {mean_rest:+.3}; \
-             `remaining` clipped at 1 in {} rows; its jump at landing {inflation:.3}; our SoC {:.3} -> {:.3} \
+             `remaining` clipped at 1 in {} rows; its jump at landing {inflation:.3}; PX4 v_empty/v_charged \
+             from `scale` {a_min:.5}..{a_max:.5} over {} rows; our SoC {:.3} (60 s) -> {:.3} \
              (sigma {:.3}), remaining {:.3} -> {:.3}; remaining energy at rest {:.1} Wh",
             rows.len() - rows.iter().filter(|r| r.remaining < 0.9999).count(),
+            ratios.len(),
             first.soc,
             last.soc,
             last.soc_sigma,
@@ -2362,12 +2411,20 @@ mod tests {
             rows[rows.len() - 1].remaining,
             last.remaining_energy_wh,
         );
-        // The reference is PX4's voltage-only estimate (no capacity configured: it stays at 1
-        // while 1.6 Ah are drawn) on a linear 3.35-4.15 V/cell map (read from `scale`), lifted in
-        // flight by throttle-based load compensation. So: at rest the two must agree to the
-        // difference between a linear map and a LiPo curve (0.1); in flight ours is lower by
-        // about PX4's lift, which the log itself shows as the jump at landing; where PX4 is
-        // clipped at 1 the gap is larger still, bounded by 1 minus our SoC at takeoff.
+        // So the reference is PX4's voltage-only estimate (no capacity configured: it also stays
+        // at 1 while 1.6 Ah are drawn), a linear map of cell voltage between v_empty and
+        // v_charged (ratio ~0.807, e.g. 3.35/4.15 V), lifted in flight by its throttle-based load
+        // compensation and clipped at 1. It is not a true SoC, and the assertions say what
+        // agreement that allows:
+        // - at rest after landing, where the lift is (mostly) gone, the two voltage→SoC maps
+        //   (linear vs LiPo curve) must agree within 0.1;
+        // - in flight, ours sits below by about PX4's lift, which the log itself shows as the
+        //   jump of `remaining` at landing (no charge drawn then), within 0.1;
+        // - over the whole log the gap is that lift plus clipping: RMS 0.25, max 0.3.
+        assert!(
+            a_max - a_min < 1e-3,
+            "remaining is not PX4's voltage estimate"
+        );
         assert!(
             inflation > 0.05,
             "expected PX4's remaining to drop at landing: {inflation}"
@@ -2382,10 +2439,10 @@ mod tests {
             "lift {inflation} vs mean gap {mean_unc}"
         );
         assert!(max_unc < inflation + 0.15, "{max_unc}");
-        assert!(max_all < 1.0 - first.soc + inflation + 0.05, "{max_all}");
-        assert!(rms_all < 0.3, "{rms_all}");
-        // Ours never rises in flight by more than voltage noise allows: a monotone-ish SoC.
-        let rises = estimates
+        assert!(max_all < 0.3, "{max_all}");
+        assert!(rms_all < 0.25, "{rms_all}");
+        // After the first minute ours never steps up by more than voltage noise allows.
+        let rises = estimates[settled..]
             .windows(2)
             .map(|w| w[1].soc - w[0].soc)
             .fold(0.0_f64, f64::max);

@@ -464,18 +464,20 @@ impl GridModel {
             self.dims(),
             "query length must equal the model's knob count"
         );
-        // One monomorphised body per dimension, so the corner arrays have exact sizes.
-        match self.dims() {
-            0 => self.eval_n::<0, 1>(x),
-            1 => self.eval_n::<1, 2>(x),
-            2 => self.eval_n::<2, 4>(x),
-            3 => self.eval_n::<3, 8>(x),
-            4 => self.eval_n::<4, 16>(x),
-            5 => self.eval_n::<5, 32>(x),
-            6 => self.eval_n::<6, 64>(x),
-            7 => self.eval_n::<7, 128>(x),
-            _ => self.eval_n::<8, 256>(x),
+        // One monomorphised body per dimension and scale: the corner arrays get exact sizes,
+        // and the linear body holds no `ln` (LLVM would otherwise speculate the call and
+        // select its result away, paying for it on every linear query).
+        macro_rules! dispatch {
+            ($($n:literal => $c:literal),*) => {
+                match (self.dims(), self.scale) {
+                    $(($n, AxisScale::Linear) => self.eval_n::<$n, $c, false>(x),
+                      ($n, AxisScale::Log) => self.eval_n::<$n, $c, true>(x),)*
+                    (_, AxisScale::Linear) => self.eval_n::<8, 256, false>(x),
+                    (_, AxisScale::Log) => self.eval_n::<8, 256, true>(x),
+                }
+            };
         }
+        dispatch!(0 => 1, 1 => 2, 2 => 4, 3 => 8, 4 => 16, 5 => 32, 6 => 64, 7 => 128)
     }
 
     /// [`GridModel::eval`] with the query checked: length and no NaN.
@@ -495,7 +497,7 @@ impl GridModel {
     }
 
     #[inline]
-    fn eval_n<const N: usize, const C: usize>(&self, x: &[f64]) -> Evaluation {
+    fn eval_n<const N: usize, const C: usize, const LOG: bool>(&self, x: &[f64]) -> Evaluation {
         let mut weight = [0.0f64; N];
         let mut delta = [0usize; N];
         let mut base = 0usize;
@@ -511,24 +513,25 @@ impl GridModel {
                 };
             }
             let last = axis.len() - 1;
-            let (lo, w) = if last == 0 || xk <= axis[0] {
-                (0, 0.0)
-            } else if xk >= axis[last] {
-                (last - 1, 1.0)
+            let (first_v, last_v) = (axis[0], axis[last]);
+            clamped |= u64::from(xk < first_v || xk > last_v) << k;
+            if last == 0 {
+                continue;
+            }
+            let xc = xk.clamp(first_v, last_v);
+            // Cell index: how many inner knots lie at or below x. A branch-free count beats
+            // a binary search on the short axes of QoS grids.
+            let inner = &axis[1..last];
+            let lo = if inner.len() <= 16 {
+                inner.iter().map(|&a| usize::from(a <= xc)).sum::<usize>()
             } else {
-                // axis[0] < xk < axis[last], so 1 ≤ i ≤ last.
-                let lo = axis.partition_point(|&a| a <= xk) - 1;
-                let t = &self.coords[k];
-                (lo, (self.scale.coord(xk) - t[lo]) / (t[lo + 1] - t[lo]))
+                inner.partition_point(|&a| a <= xc)
             };
-            if xk < axis[0] || xk > axis[last] {
-                clamped |= 1 << k;
-            }
-            weight[k] = w;
+            let t = &self.coords[k];
+            let tx = if LOG { xc.ln() } else { xc };
+            weight[k] = (tx - t[lo]) / (t[lo + 1] - t[lo]);
             base += lo * self.strides[k];
-            if last > 0 {
-                delta[k] = self.strides[k];
-            }
+            delta[k] = self.strides[k];
         }
 
         // Gather the 2^N corners: bit k of the corner index selects the upper neighbour on
@@ -746,7 +749,8 @@ impl PowerModel {
     /// Predicted power at `x`, given in [`PowerModel::knob_names`] order.
     ///
     /// # Panics
-    /// When `x` is shorter than the model's knob list; [`PowerModel::try_eval`] checks it.
+    /// When `x` is shorter than the model's knob list, or a hand-built `Additive` has more
+    /// than [`MAX_MODEL_KNOBS`] knobs; [`PowerModel::try_eval`] checks both.
     pub fn eval(&self, x: &[f64]) -> Evaluation {
         match self {
             PowerModel::Joint(g) => g.eval(x),
@@ -1021,6 +1025,43 @@ mod tests {
                     }
                     assert_eq!(e.extrapolated, e.clamped != 0);
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn long_axes_match_nested_interpolation() {
+        // Axes longer than 18 values take the binary-search path for the cell.
+        let mut rng = StdRng::seed_from_u64(6);
+        for (scale, log) in [(AxisScale::Linear, false), (AxisScale::Log, true)] {
+            let axes: Vec<Vec<f64>> = [50, 19, 3]
+                .iter()
+                .map(|&len| {
+                    let mut v = 0.01;
+                    (0..len)
+                        .map(|_| {
+                            v += rng.random_range(0.01..1.0);
+                            v
+                        })
+                        .collect()
+                })
+                .collect();
+            let f = |x: &[f64]| x[0].cos() * x[1] + x[2] * x[2];
+            let points: Vec<(Vec<f64>, f64)> = grid_points(&axes)
+                .into_iter()
+                .map(|p| {
+                    let v = f(&p);
+                    (p, v)
+                })
+                .collect();
+            let m = GridModel::from_samples(names(3), &points, scale).unwrap();
+            for (x, v) in points.iter().step_by(7) {
+                assert_eq!(m.eval(x).value, *v);
+            }
+            for _ in 0..500 {
+                let x = random_inside(&mut rng, &axes);
+                let want = nested(&axes, &f, &x, log);
+                assert!(close(m.eval(&x).value, want, 1e-12), "{scale:?} {x:?}");
             }
         }
     }

@@ -6,6 +6,10 @@ use std::fmt::Write as _;
 use std::ops::Range;
 use std::path::PathBuf;
 
+/// 1-based line and character column of a byte offset; one definition serves config and
+/// profile files alike.
+pub use power_models::profile::line_col;
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Severity {
@@ -126,35 +130,9 @@ pub struct DiagnosticRecord {
     pub message: String,
 }
 
-/// 1-based line and character column of byte `offset` (clamped to the text and to a char boundary).
-pub fn line_col(source: &str, offset: usize) -> (usize, usize) {
-    let mut offset = offset.min(source.len());
-    while !source.is_char_boundary(offset) {
-        offset -= 1;
-    }
-    let before = &source[..offset];
-    let line = before.matches('\n').count() + 1;
-    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
-    let column = source[line_start..offset].chars().count() + 1;
-    (line, column)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn line_and_column_count_characters_from_one() {
-        let text = "a = 1\nbé = 2\n";
-        assert_eq!(line_col(text, 0), (1, 1));
-        assert_eq!(line_col(text, 4), (1, 5));
-        assert_eq!(line_col(text, 6), (2, 1));
-        // 'é' is two bytes: the '=' after it is the 4th character of line 2.
-        let eq = text.rfind('=').unwrap();
-        assert_eq!(line_col(text, eq), (2, 4));
-        // Past the end clamps to the end.
-        assert_eq!(line_col(text, 1000), (3, 1));
-    }
 
     #[test]
     fn render_puts_the_caret_under_the_span() {

@@ -251,7 +251,11 @@ impl MissionModel {
 
     /// The power of every combination of levels of the active tasks a profile models
     /// (row-major, first task slowest), and those tasks' indices.
-    fn power_table(&self, loaded: &LoadedProfile, active_tasks: &[usize]) -> (Vec<usize>, Vec<f64>) {
+    fn power_table(
+        &self,
+        loaded: &LoadedProfile,
+        active_tasks: &[usize],
+    ) -> (Vec<usize>, Vec<f64>) {
         let config = &self.config;
         let axes = loaded.model.axes();
         // For each profile knob: the active task that sets it, if any.
@@ -360,11 +364,15 @@ mod tests {
             let active: Vec<usize> = (0..config.tasks.len())
                 .filter(|&t| config.tasks[t].runs_in(&phase.name))
                 .collect();
-            let counts: Vec<usize> = active.iter().map(|&t| config.tasks[t].levels.len()).collect();
+            let counts: Vec<usize> = active
+                .iter()
+                .map(|&t| config.tasks[t].levels.len())
+                .collect();
             let mut options = Vec::new();
             let mut levels = vec![0; active.len()];
             loop {
-                let level_of = |task: usize| active.iter().position(|&t| t == task).map(|i| levels[i]);
+                let level_of =
+                    |task: usize| active.iter().position(|&t| t == task).map(|i| levels[i]);
                 let mut companion_w = 0.0;
                 for (index, _) in config.power_model.profiles_for(&phase.name) {
                     let loaded = &model.profiles[index];
@@ -374,7 +382,11 @@ mod tests {
                         .iter()
                         .enumerate()
                         .map(|(axis, knob)| {
-                            let task = config.tasks.iter().position(|t| &t.knob_name() == knob).unwrap();
+                            let task = config
+                                .tasks
+                                .iter()
+                                .position(|t| &t.knob_name() == knob)
+                                .unwrap();
                             match level_of(task) {
                                 Some(level) => config.tasks[task].levels[level],
                                 None => loaded.model.axes()[axis][0],
@@ -385,7 +397,11 @@ mod tests {
                 }
                 let duration_s = match &phase.duration_by_level {
                     Some(by_level) => {
-                        let task = config.tasks.iter().position(|t| t.name == by_level.task).unwrap();
+                        let task = config
+                            .tasks
+                            .iter()
+                            .position(|t| t.name == by_level.task)
+                            .unwrap();
                         by_level.duration_s[level_of(task).unwrap()]
                     }
                     None => phase.duration_s,
@@ -393,7 +409,9 @@ mod tests {
                 let flight_w = config.flight.power_w(&phase.name).unwrap();
                 let utility: f64 = active
                     .iter()
-                    .map(|&t| config.tasks[t].weight * config.tasks[t].utility[level_of(t).unwrap()])
+                    .map(|&t| {
+                        config.tasks[t].weight * config.tasks[t].utility[level_of(t).unwrap()]
+                    })
                     .sum();
                 options.push((duration_s * (flight_w + companion_w) / 3600.0, utility));
                 if !next_combination(&mut levels, &counts) {
@@ -413,9 +431,9 @@ mod tests {
         let model = reference_model();
         let problem = model.plan_problem();
         let plans = brute_force(&model);
-        let (min_wh, max_wh) = plans
-            .iter()
-            .fold((f64::INFINITY, 0.0_f64), |(lo, hi), p| (lo.min(p.0), hi.max(p.0)));
+        let (min_wh, max_wh) = plans.iter().fold((f64::INFINITY, 0.0_f64), |(lo, hi), p| {
+            (lo.min(p.0), hi.max(p.0))
+        });
         for step in 0..=40 {
             let budget_wh = min_wh - 0.1 + (max_wh - min_wh + 0.2) * f64::from(step) / 40.0;
             let plan = solve(&problem, budget_wh).unwrap();
@@ -423,12 +441,18 @@ mod tests {
                 .iter()
                 .filter(|p| p.0 <= budget_wh)
                 .map(|p| p.1)
-                .fold(None, |best: Option<f64>, u| Some(best.map_or(u, |b| b.max(u))));
+                .fold(None, |best: Option<f64>, u| {
+                    Some(best.map_or(u, |b| b.max(u)))
+                });
             match best {
                 None => assert!(!plan.feasible, "budget {budget_wh}"),
                 Some(best) => {
                     assert!(plan.feasible, "budget {budget_wh}");
-                    assert!((plan.utility - best).abs() < 1e-9, "budget {budget_wh}: {} vs {best}", plan.utility);
+                    assert!(
+                        (plan.utility - best).abs() < 1e-9,
+                        "budget {budget_wh}: {} vs {best}",
+                        plan.utility
+                    );
                 }
             }
         }
@@ -442,7 +466,12 @@ mod tests {
         // the profile's lowest rate (0.5 fps in the seed grid).
         let transit = &problem.phases[0];
         assert_eq!(transit.name, "transit");
-        let hazard = model.config.tasks.iter().position(|t| t.name == "hazard").unwrap();
+        let hazard = model
+            .config
+            .tasks
+            .iter()
+            .position(|t| t.name == "hazard")
+            .unwrap();
         assert_eq!(transit.terms.len(), 1);
         assert_eq!(transit.terms[0].tasks, vec![hazard]);
         let tracking_profile = &model.profiles[0];
@@ -450,5 +479,90 @@ mod tests {
             let expected = tracking_profile.model.eval(&[*value, 0.5]).value;
             assert_eq!(transit.terms[0].power_w[level], expected);
         }
+    }
+
+    #[test]
+    fn several_profiles_of_one_phase_add_up_above_idle() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let dir = tempfile::tempdir().unwrap();
+        let hazard_samples = [(0.1, 3.9), (0.25, 4.2), (1.0, 4.9), (4.0, 6.2)];
+        let mut hazard_profile =
+            String::from("board = \"b\"\nmeter = \"m\"\nknobs = [\"hazard.rate_fps\"]\n");
+        for (rate_fps, power_w) in hazard_samples {
+            hazard_profile += &format!("[[sample]]\nknobs = [{rate_fps}]\npower_w = {power_w}\n");
+        }
+        std::fs::write(dir.path().join("hazard.toml"), hazard_profile).unwrap();
+        let landing_path = root.join("profiles/jetson-nano-seed/landing.toml");
+        let reference = std::fs::read_to_string(root.join("qos.toml")).unwrap();
+        let start = reference.find("[power_model]").unwrap();
+        let end = reference.find("# The tasks.").unwrap();
+        let power_model = format!(
+            "[power_model]\nidle_power_w = 3.0\n[[power_model.profile]]\npath = \"{}\"\nphases = [\"tracking\", \"landing\"]\n[[power_model.profile]]\npath = \"hazard.toml\"\nphases = [\"transit\", \"tracking\"]\n\n",
+            landing_path.display()
+        );
+        let text = format!("{}{power_model}{}", &reference[..start], &reference[end..]);
+        let config_path = dir.path().join("qos.toml");
+        std::fs::write(&config_path, text).unwrap();
+        let loaded = load_file(&config_path, &PluginCatalog::builtin()).expect("valid");
+        let model = load_mission_model(&loaded).expect("profiles fit");
+        let problem = model.plan_problem();
+        let tracking = problem
+            .phases
+            .iter()
+            .find(|p| p.name == "tracking")
+            .unwrap();
+        assert_eq!(tracking.base_power_w, 3.0);
+        assert_eq!(tracking.terms.len(), 2);
+
+        // Expected: idle + (landing profile − idle) + (hazard profile − idle), read from the
+        // measured samples themselves (the levels are exactly the measured knob values).
+        let landing: toml::Table = std::fs::read_to_string(&landing_path)
+            .unwrap()
+            .parse()
+            .unwrap();
+        let measured_landing = |rate_fps: f64| {
+            landing["sample"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|s| s["knobs"][0].as_float() == Some(rate_fps))
+                .unwrap()["power_w"]
+                .as_float()
+                .unwrap()
+        };
+        let config = &model.config;
+        let detection = config
+            .tasks
+            .iter()
+            .position(|t| t.name == "detection")
+            .unwrap();
+        let hazard = config
+            .tasks
+            .iter()
+            .position(|t| t.name == "hazard")
+            .unwrap();
+        let term_of = |task: usize| {
+            tracking
+                .terms
+                .iter()
+                .find(|t| t.tasks == vec![task])
+                .unwrap()
+        };
+        for (d, rate_fps) in config.tasks[detection].levels.iter().enumerate() {
+            for (h, (_, hazard_w)) in hazard_samples.iter().enumerate() {
+                let predicted = tracking.base_power_w
+                    + term_of(detection).power_w[d]
+                    + term_of(hazard).power_w[h];
+                let expected = measured_landing(*rate_fps) + hazard_w - 3.0;
+                assert!(
+                    (predicted - expected).abs() < 1e-9,
+                    "{predicted} vs {expected}"
+                );
+            }
+        }
+        // A phase with one profile uses it whole, without subtracting idle.
+        let landing_phase = problem.phases.iter().find(|p| p.name == "landing").unwrap();
+        assert_eq!(landing_phase.base_power_w, 0.0);
+        assert_eq!(landing_phase.terms[0].power_w[3], measured_landing(10.0));
     }
 }
