@@ -149,15 +149,14 @@ fn the_svg_plots_the_frontier() {
     assert!(text.contains("chosen plan"));
 }
 
-#[test]
-fn a_profile_knob_no_task_has_is_an_error_in_the_config() {
+/// A scratch copy of the reference mission whose landing phase is modelled by a profile with
+/// the given text; returns (folder, config path, config text, profile path).
+fn mission_with_landing_profile(
+    profile_text: &str,
+) -> (tempfile::TempDir, PathBuf, String, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
-    let profile = dir.path().join("odd.toml");
-    std::fs::write(
-        &profile,
-        "board = \"x\"\nmeter = \"y\"\nknobs = [\"radar.rate_fps\"]\n[[sample]]\nknobs = [1.0]\npower_w = 3.0\n[[sample]]\nknobs = [2.0]\npower_w = 4.0\n",
-    )
-    .unwrap();
+    let profile = dir.path().join("landing-profile.toml");
+    std::fs::write(&profile, profile_text).unwrap();
     let text = std::fs::read_to_string(repo_root().join("qos.toml"))
         .unwrap()
         .replace(
@@ -174,6 +173,14 @@ fn a_profile_knob_no_task_has_is_an_error_in_the_config() {
         );
     let config = dir.path().join("qos.toml");
     std::fs::write(&config, &text).unwrap();
+    (dir, config, text, profile)
+}
+
+#[test]
+fn a_profile_knob_no_task_has_is_an_error_in_the_config() {
+    let (_dir, config, text, profile) = mission_with_landing_profile(
+        "board = \"x\"\nmeter = \"y\"\nknobs = [\"radar.rate_fps\"]\n[[sample]]\nknobs = [1.0]\npower_w = 3.0\n[[sample]]\nknobs = [2.0]\npower_w = 4.0\n",
+    );
     let output = qosrt(&["plan", config.to_str().unwrap()]);
     assert_eq!(output.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&output.stderr);
@@ -192,26 +199,9 @@ fn a_profile_knob_no_task_has_is_an_error_in_the_config() {
 
 #[test]
 fn a_broken_profile_is_located_in_the_profile() {
-    let dir = tempfile::tempdir().unwrap();
-    let profile = dir.path().join("broken.toml");
-    let profile_text = "board = \"x\"\nmeter = \"y\"\nknobs = [\"detection.rate_fps\"]\n[[sample]]\nknobs = [1.0]\npower_w = \"three\"\n";
-    std::fs::write(&profile, profile_text).unwrap();
-    let text = std::fs::read_to_string(repo_root().join("qos.toml"))
-        .unwrap()
-        .replace(
-            "path = \"profiles/",
-            &format!("path = \"{}/profiles/", repo_root().display()),
-        )
-        .replacen(
-            &format!(
-                "{}/profiles/jetson-nano-seed/landing.toml",
-                repo_root().display()
-            ),
-            profile.to_str().unwrap(),
-            1,
-        );
-    let config = dir.path().join("qos.toml");
-    std::fs::write(&config, &text).unwrap();
+    let (_dir, config, _, profile) = mission_with_landing_profile(
+        "board = \"x\"\nmeter = \"y\"\nknobs = [\"detection.rate_fps\"]\n[[sample]]\nknobs = [1.0]\npower_w = \"three\"\n",
+    );
     let output = qosrt(&["plan", config.to_str().unwrap()]);
     assert_eq!(output.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&output.stderr);
