@@ -1,2 +1,4 @@
 //! Pure computation for the mission, no I/O and no async: vision, estimation, control, tracking,
 //! stereo and the hazard CNN.
+
+pub mod vision;

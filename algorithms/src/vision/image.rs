@@ -1,0 +1,246 @@
+//! Grayscale images as the detectors see them: 8-bit, row-major, with a row stride so a camera's
+//! padded buffers can be read in place.
+
+use thiserror::Error;
+
+/// A camera frame that cannot be read as the size and layout it claims.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+pub enum FrameError {
+    #[error("the frame is empty ({width}×{height} pixels)")]
+    Empty { width: usize, height: usize },
+    #[error("row stride {stride} is shorter than the width {width}")]
+    StrideTooShort { width: usize, stride: usize },
+    #[error("a {width}×{height} frame with stride {stride} needs {needed} bytes, the buffer has {found}")]
+    BufferTooShort {
+        width: usize,
+        height: usize,
+        stride: usize,
+        needed: usize,
+        found: usize,
+    },
+    #[error("expected a {expected_width}×{expected_height} frame, got {width}×{height}")]
+    WrongSize {
+        expected_width: usize,
+        expected_height: usize,
+        width: usize,
+        height: usize,
+    },
+}
+
+/// A borrowed grayscale image: `height` rows of `width` pixels, rows `stride` bytes apart.
+#[derive(Debug, Clone, Copy)]
+pub struct ImageView<'a> {
+    width: usize,
+    height: usize,
+    stride: usize,
+    data: &'a [u8],
+}
+
+impl<'a> ImageView<'a> {
+    /// Checks that `data` holds a `width`×`height` image with rows `stride` bytes apart.
+    pub fn new(
+        width: usize,
+        height: usize,
+        stride: usize,
+        data: &'a [u8],
+    ) -> Result<Self, FrameError> {
+        if width == 0 || height == 0 {
+            return Err(FrameError::Empty { width, height });
+        }
+        if stride < width {
+            return Err(FrameError::StrideTooShort { width, stride });
+        }
+        // The last row needs only `width` bytes, not a whole stride.
+        let needed = stride
+            .checked_mul(height - 1)
+            .and_then(|n| n.checked_add(width))
+            .unwrap_or(usize::MAX);
+        if data.len() < needed {
+            return Err(FrameError::BufferTooShort {
+                width,
+                height,
+                stride,
+                needed,
+                found: data.len(),
+            });
+        }
+        Ok(Self {
+            width,
+            height,
+            stride,
+            data,
+        })
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// Row `y` (`width` pixels).
+    pub fn row(&self, y: usize) -> &'a [u8] {
+        let start = y * self.stride;
+        &self.data[start..start + self.width]
+    }
+
+    /// Pixel at (x, y); x, y must be inside the image.
+    pub fn get(&self, x: usize, y: usize) -> u8 {
+        self.data[y * self.stride + x]
+    }
+
+    /// Fails unless the image is `width`×`height`.
+    pub fn expect_size(&self, width: usize, height: usize) -> Result<(), FrameError> {
+        if (self.width, self.height) == (width, height) {
+            Ok(())
+        } else {
+            Err(FrameError::WrongSize {
+                expected_width: width,
+                expected_height: height,
+                width: self.width,
+                height: self.height,
+            })
+        }
+    }
+
+    /// A tightly packed copy.
+    pub fn to_owned(&self) -> GrayImage {
+        let mut data = Vec::with_capacity(self.width * self.height);
+        for y in 0..self.height {
+            data.extend_from_slice(self.row(y));
+        }
+        GrayImage {
+            width: self.width,
+            height: self.height,
+            data,
+        }
+    }
+}
+
+/// An owned, tightly packed grayscale image.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct GrayImage {
+    width: usize,
+    height: usize,
+    data: Vec<u8>,
+}
+
+impl GrayImage {
+    /// A `width`×`height` image filled with `value`.
+    pub fn filled(width: usize, height: usize, value: u8) -> Result<Self, FrameError> {
+        if width == 0 || height == 0 {
+            return Err(FrameError::Empty { width, height });
+        }
+        Ok(Self {
+            width,
+            height,
+            data: vec![value; width * height],
+        })
+    }
+
+    /// Takes a tightly packed buffer of `width`×`height` pixels.
+    pub fn from_vec(width: usize, height: usize, data: Vec<u8>) -> Result<Self, FrameError> {
+        ImageView::new(width, height, width, &data)?;
+        if data.len() != width * height {
+            return Err(FrameError::BufferTooShort {
+                width,
+                height,
+                stride: width,
+                needed: width * height,
+                found: data.len(),
+            });
+        }
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    pub fn view(&self) -> ImageView<'_> {
+        ImageView {
+            width: self.width,
+            height: self.height,
+            stride: self.width,
+            data: &self.data,
+        }
+    }
+
+    pub fn data(&self) -> &[u8] {
+        &self.data
+    }
+
+    pub fn data_mut(&mut self) -> &mut [u8] {
+        &mut self.data
+    }
+
+    pub fn get(&self, x: usize, y: usize) -> u8 {
+        self.data[y * self.width + x]
+    }
+
+    pub fn set(&mut self, x: usize, y: usize, value: u8) {
+        self.data[y * self.width + x] = value;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn views_respect_the_stride() {
+        // 3×2 image in rows of 4 bytes; the padding byte must never be read as a pixel.
+        let data = [1, 2, 3, 99, 4, 5, 6];
+        let view = ImageView::new(3, 2, 4, &data).unwrap();
+        assert_eq!(view.row(1), &[4, 5, 6]);
+        assert_eq!(view.get(2, 1), 6);
+        assert_eq!(view.to_owned().data(), &[1, 2, 3, 4, 5, 6]);
+    }
+
+    #[test]
+    fn bad_layouts_are_named_errors() {
+        let data = [0u8; 10];
+        assert_eq!(
+            ImageView::new(0, 2, 4, &data).unwrap_err(),
+            FrameError::Empty {
+                width: 0,
+                height: 2
+            }
+        );
+        assert_eq!(
+            ImageView::new(4, 2, 3, &data).unwrap_err(),
+            FrameError::StrideTooShort {
+                width: 4,
+                stride: 3
+            }
+        );
+        assert!(matches!(
+            ImageView::new(4, 3, 4, &data),
+            Err(FrameError::BufferTooShort {
+                needed: 12,
+                found: 10,
+                ..
+            })
+        ));
+        let view = ImageView::new(2, 2, 2, &data).unwrap();
+        assert!(matches!(
+            view.expect_size(640, 480),
+            Err(FrameError::WrongSize { .. })
+        ));
+        assert!(GrayImage::from_vec(3, 3, vec![0; 8]).is_err());
+    }
+}
