@@ -60,6 +60,13 @@ impl PluginCatalog {
         }
     }
 
+    /// A catalogue of exactly these plugins (a registry's, with its users' own plugins).
+    pub fn from_plugins(plugins: impl IntoIterator<Item = PluginInfo>) -> Self {
+        Self {
+            plugins: plugins.into_iter().collect(),
+        }
+    }
+
     pub fn get(&self, name: &str) -> Option<&PluginInfo> {
         self.plugins.iter().find(|plugin| plugin.name == name)
     }

@@ -1,7 +1,14 @@
 //! The qosrt runtime: mission configuration, and (as the project grows) the scheduler, task
 //! plugins, resources, clock, energy governor and MAVLink link.
 
+pub mod bus;
 pub mod catalog;
+pub mod clock;
 pub mod config;
 pub mod diagnostic;
 pub mod energy;
+pub mod governor;
+pub mod registry;
+pub mod scheduler;
+pub mod task;
+pub mod telemetry;

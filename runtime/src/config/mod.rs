@@ -5,7 +5,7 @@
 //! rejected so a misspelt key is an error, not a silently ignored setting.
 
 mod load;
-mod suggest;
+pub(crate) mod suggest;
 mod validate;
 
 pub use load::{load_file, load_str, span_at, ConfigFailure, LoadedConfig};
@@ -231,6 +231,10 @@ pub struct TaskConfig {
     pub levels: Vec<f64>,
     /// Utility of each level in [0, 1], non-decreasing.
     pub utility: Vec<f64>,
+    /// What the scheduler does when the task fails: `{ policy = "never" }` or
+    /// `{ policy = "on_failure", max_restarts = 3 }` (the default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub restart: Option<crate::scheduler::RestartPolicy>,
     /// Free settings handed to the plugin.
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub params: toml::Table,

@@ -1,0 +1,740 @@
+//! The message bus between tasks: typed, timestamped messages on named topics.
+//!
+//! Two kinds of topic:
+//! - **latest value** (like PX4's uORB): a publisher overwrites the one slot; a subscriber reads
+//!   the newest message and can tell whether it is new since it last looked (and, from the
+//!   sequence numbers, how many it missed). For state that only matters when fresh: a marker
+//!   observation, the relative state, a hazard report.
+//! - **queue**: bounded FIFO with one receiver, for streams where every message matters. When
+//!   full, the topic's [`Overflow`] policy either drops the oldest message or rejects the new
+//!   one; both are counted.
+//!
+//! A topic's name is bound to one message type and one kind at first use; asking for it with
+//! another type or kind is a named error, never a silent second topic. There is no global
+//! state: a [`Bus`] is an object the scheduler hands to its tasks (cloning shares it).
+
+use crate::clock::Timestamp;
+use std::any::{type_name, Any, TypeId};
+use std::collections::{BTreeMap, VecDeque};
+use std::fmt;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+
+/// One message: the value, when it was stamped, and its sequence number on its topic
+/// (1 for the first message published, counting every message ever offered).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Message<T> {
+    pub stamp: Timestamp,
+    pub seq: u64,
+    pub value: T,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TopicKind {
+    Latest,
+    Queue,
+}
+
+impl fmt::Display for TopicKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            TopicKind::Latest => "latest-value",
+            TopicKind::Queue => "queue",
+        })
+    }
+}
+
+/// What a full queue does with a new message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Overflow {
+    /// Evict the oldest queued message to make room (counted as dropped): the receiver always
+    /// sees the most recent `capacity` messages.
+    DropOldest,
+    /// Refuse the new message (counted as rejected) and hand it back to the sender.
+    Reject,
+}
+
+/// A queue topic's contract; sender and receiver must agree on it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct QueueSpec {
+    pub capacity: usize,
+    pub overflow: Overflow,
+}
+
+impl QueueSpec {
+    pub fn drop_oldest(capacity: usize) -> Self {
+        QueueSpec {
+            capacity,
+            overflow: Overflow::DropOldest,
+        }
+    }
+
+    pub fn reject(capacity: usize) -> Self {
+        QueueSpec {
+            capacity,
+            overflow: Overflow::Reject,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BusError {
+    #[error("a topic name must not be empty")]
+    EmptyTopicName,
+    #[error("topic `{topic}` carries `{existing}`, not `{requested}`")]
+    TypeMismatch {
+        topic: String,
+        existing: &'static str,
+        requested: &'static str,
+    },
+    #[error("topic `{topic}` is a {existing} topic, not a {requested} topic")]
+    KindMismatch {
+        topic: String,
+        existing: TopicKind,
+        requested: TopicKind,
+    },
+    #[error(
+        "queue `{topic}` was declared with capacity {} ({:?}), not capacity {} ({:?})",
+        existing.capacity, existing.overflow, requested.capacity, requested.overflow
+    )]
+    QueueSpecMismatch {
+        topic: String,
+        existing: QueueSpec,
+        requested: QueueSpec,
+    },
+    #[error("queue `{topic}` needs a capacity of at least 1")]
+    ZeroCapacity { topic: String },
+    #[error("queue `{topic}` already has its receiver; a queue has exactly one")]
+    ReceiverTaken { topic: String },
+}
+
+/// A queue refused a message (its policy is [`Overflow::Reject`] and it is full); here it is back.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct QueueFull<T>(pub T);
+
+/// How a message went into a queue.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sent {
+    Queued,
+    /// Queued after evicting the oldest message.
+    DroppedOldest,
+}
+
+/// Counters of one topic, for diagnostics.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TopicInfo {
+    pub name: String,
+    pub type_name: &'static str,
+    pub kind: TopicKind,
+    /// Messages offered to the topic (queued, dropped-oldest and rejected alike).
+    pub published: u64,
+    /// Queue only: messages evicted by [`Overflow::DropOldest`].
+    pub dropped: u64,
+    /// Queue only: messages refused by [`Overflow::Reject`].
+    pub rejected: u64,
+    /// Queue only: messages waiting.
+    pub depth: usize,
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panicking task may have held a topic's lock; the data (a slot or a queue) is still
+    // consistent because every critical section is a single push/pop/replace.
+    mutex.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+trait TopicCounters: Send + Sync {
+    fn counters(&self) -> (u64, u64, u64, usize);
+}
+
+struct TopicEntry {
+    type_id: TypeId,
+    type_name: &'static str,
+    kind: TopicKind,
+    queue_spec: Option<QueueSpec>,
+    slot: Arc<dyn Any + Send + Sync>,
+    counters: Arc<dyn TopicCounters>,
+}
+
+/// The bus: a set of named topics. Clone it to share it.
+#[derive(Clone, Default)]
+pub struct Bus {
+    topics: Arc<Mutex<BTreeMap<String, TopicEntry>>>,
+}
+
+impl fmt::Debug for Bus {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Bus")
+            .field("topics", &lock(&self.topics).keys().collect::<Vec<_>>())
+            .finish()
+    }
+}
+
+impl Bus {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A publisher on the latest-value topic `topic` of type `T` (created on first use).
+    pub fn publisher<T: Send + Sync + 'static>(
+        &self,
+        topic: &str,
+    ) -> Result<Publisher<T>, BusError> {
+        Ok(Publisher {
+            slot: self.latest_slot::<T>(topic)?,
+        })
+    }
+
+    /// A subscriber to the latest-value topic `topic` of type `T` (created on first use). It has
+    /// seen nothing yet: a message already on the topic counts as new.
+    pub fn subscriber<T: Send + Sync + 'static>(
+        &self,
+        topic: &str,
+    ) -> Result<Subscriber<T>, BusError> {
+        Ok(Subscriber {
+            slot: self.latest_slot::<T>(topic)?,
+            seen_seq: 0,
+        })
+    }
+
+    /// A sender on the queue `topic`; the first sender or receiver declares `spec`, later ones
+    /// must ask for the same.
+    pub fn queue_sender<T: Send + 'static>(
+        &self,
+        topic: &str,
+        spec: QueueSpec,
+    ) -> Result<QueueSender<T>, BusError> {
+        Ok(QueueSender {
+            queue: self.queue_slot::<T>(topic, spec)?,
+        })
+    }
+
+    /// The one receiver of the queue `topic`; dropping it lets another take its place (a
+    /// restarted task), with the messages queued meanwhile still waiting.
+    pub fn queue_receiver<T: Send + 'static>(
+        &self,
+        topic: &str,
+        spec: QueueSpec,
+    ) -> Result<QueueReceiver<T>, BusError> {
+        let queue = self.queue_slot::<T>(topic, spec)?;
+        if queue.receiver_taken.swap(true, Ordering::AcqRel) {
+            return Err(BusError::ReceiverTaken {
+                topic: topic.to_string(),
+            });
+        }
+        Ok(QueueReceiver { queue })
+    }
+
+    /// Every topic with its counters, by name.
+    pub fn topics(&self) -> Vec<TopicInfo> {
+        lock(&self.topics)
+            .iter()
+            .map(|(name, entry)| {
+                let (published, dropped, rejected, depth) = entry.counters.counters();
+                TopicInfo {
+                    name: name.clone(),
+                    type_name: entry.type_name,
+                    kind: entry.kind,
+                    published,
+                    dropped,
+                    rejected,
+                    depth,
+                }
+            })
+            .collect()
+    }
+
+    fn latest_slot<T: Send + Sync + 'static>(
+        &self,
+        topic: &str,
+    ) -> Result<Arc<LatestSlot<T>>, BusError> {
+        let entry = self.entry::<T>(topic, TopicKind::Latest, None, || {
+            let slot = Arc::new(LatestSlot::<T> {
+                message: Mutex::new(None),
+                published: AtomicU64::new(0),
+            });
+            (slot.clone(), slot)
+        })?;
+        downcast(entry)
+    }
+
+    fn queue_slot<T: Send + 'static>(
+        &self,
+        topic: &str,
+        spec: QueueSpec,
+    ) -> Result<Arc<QueueSlot<T>>, BusError> {
+        if spec.capacity == 0 {
+            return Err(BusError::ZeroCapacity {
+                topic: topic.to_string(),
+            });
+        }
+        let entry = self.entry::<T>(topic, TopicKind::Queue, Some(spec), || {
+            let slot = Arc::new(QueueSlot::<T> {
+                spec,
+                messages: Mutex::new(VecDeque::with_capacity(spec.capacity)),
+                published: AtomicU64::new(0),
+                dropped: AtomicU64::new(0),
+                rejected: AtomicU64::new(0),
+                receiver_taken: AtomicBool::new(false),
+            });
+            (slot.clone(), slot)
+        })?;
+        downcast(entry)
+    }
+
+    /// The topic's slot, created by `make` if the topic is new, after checking type and kind.
+    fn entry<T: 'static>(
+        &self,
+        topic: &str,
+        kind: TopicKind,
+        queue_spec: Option<QueueSpec>,
+        make: impl FnOnce() -> (Arc<dyn Any + Send + Sync>, Arc<dyn TopicCounters>),
+    ) -> Result<Arc<dyn Any + Send + Sync>, BusError> {
+        if topic.is_empty() {
+            return Err(BusError::EmptyTopicName);
+        }
+        let mut topics = lock(&self.topics);
+        if let Some(entry) = topics.get(topic) {
+            if entry.type_id != TypeId::of::<T>() {
+                return Err(BusError::TypeMismatch {
+                    topic: topic.to_string(),
+                    existing: entry.type_name,
+                    requested: type_name::<T>(),
+                });
+            }
+            if entry.kind != kind {
+                return Err(BusError::KindMismatch {
+                    topic: topic.to_string(),
+                    existing: entry.kind,
+                    requested: kind,
+                });
+            }
+            if let (Some(existing), Some(requested)) = (entry.queue_spec, queue_spec) {
+                if existing != requested {
+                    return Err(BusError::QueueSpecMismatch {
+                        topic: topic.to_string(),
+                        existing,
+                        requested,
+                    });
+                }
+            }
+            return Ok(entry.slot.clone());
+        }
+        let (slot, counters) = make();
+        topics.insert(
+            topic.to_string(),
+            TopicEntry {
+                type_id: TypeId::of::<T>(),
+                type_name: type_name::<T>(),
+                kind,
+                queue_spec,
+                slot: slot.clone(),
+                counters,
+            },
+        );
+        Ok(slot)
+    }
+}
+
+fn downcast<S: Send + Sync + 'static>(
+    slot: Arc<dyn Any + Send + Sync>,
+) -> Result<Arc<S>, BusError> {
+    // The entry's TypeId was checked against T, so the slot is a S; a failure here would be a bug
+    // in this module, reported as a type mismatch rather than a panic.
+    slot.downcast::<S>().map_err(|_| BusError::TypeMismatch {
+        topic: String::new(),
+        existing: "another slot type",
+        requested: type_name::<S>(),
+    })
+}
+
+struct LatestSlot<T> {
+    message: Mutex<Option<Arc<Message<T>>>>,
+    published: AtomicU64,
+}
+
+impl<T: Send + Sync> TopicCounters for LatestSlot<T> {
+    fn counters(&self) -> (u64, u64, u64, usize) {
+        (self.published.load(Ordering::Acquire), 0, 0, 0)
+    }
+}
+
+/// Writes a latest-value topic. Cloneable: several tasks may publish on one topic.
+pub struct Publisher<T> {
+    slot: Arc<LatestSlot<T>>,
+}
+
+impl<T> Clone for Publisher<T> {
+    fn clone(&self) -> Self {
+        Publisher {
+            slot: self.slot.clone(),
+        }
+    }
+}
+
+impl<T> fmt::Debug for Publisher<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Publisher")
+            .field("type", &type_name::<T>())
+            .finish()
+    }
+}
+
+impl<T> Publisher<T> {
+    /// Replaces the topic's value; returns the message's sequence number.
+    pub fn publish(&self, stamp: Timestamp, value: T) -> u64 {
+        let mut slot = lock(&self.slot.message);
+        // Numbered under the lock so the slot's sequence numbers only grow.
+        let seq = self.slot.published.fetch_add(1, Ordering::AcqRel) + 1;
+        *slot = Some(Arc::new(Message { stamp, seq, value }));
+        seq
+    }
+}
+
+/// Reads a latest-value topic, remembering what it has seen.
+pub struct Subscriber<T> {
+    slot: Arc<LatestSlot<T>>,
+    seen_seq: u64,
+}
+
+impl<T> fmt::Debug for Subscriber<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Subscriber")
+            .field("type", &type_name::<T>())
+            .field("seen_seq", &self.seen_seq)
+            .finish()
+    }
+}
+
+impl<T> Subscriber<T> {
+    /// Whether a message newer than the last one this subscriber read is on the topic.
+    pub fn updated(&self) -> bool {
+        self.slot.published.load(Ordering::Acquire) > self.seen_seq
+    }
+
+    /// The newest message, new or not, marking it seen.
+    pub fn latest(&mut self) -> Option<Arc<Message<T>>> {
+        let message = lock(&self.slot.message).clone()?;
+        self.seen_seq = message.seq;
+        Some(message)
+    }
+
+    /// The newest message only if it is new since the last read, marking it seen.
+    pub fn take_new(&mut self) -> Option<Arc<Message<T>>> {
+        let message = lock(&self.slot.message).clone()?;
+        if message.seq <= self.seen_seq {
+            return None;
+        }
+        self.seen_seq = message.seq;
+        Some(message)
+    }
+
+    /// The newest message without marking it seen.
+    pub fn peek(&self) -> Option<Arc<Message<T>>> {
+        lock(&self.slot.message).clone()
+    }
+
+    /// Sequence number of the last message read (0 before the first).
+    pub fn seen_seq(&self) -> u64 {
+        self.seen_seq
+    }
+}
+
+struct QueueSlot<T> {
+    spec: QueueSpec,
+    messages: Mutex<VecDeque<Message<T>>>,
+    published: AtomicU64,
+    dropped: AtomicU64,
+    rejected: AtomicU64,
+    receiver_taken: AtomicBool,
+}
+
+impl<T: Send> TopicCounters for QueueSlot<T> {
+    fn counters(&self) -> (u64, u64, u64, usize) {
+        (
+            self.published.load(Ordering::Acquire),
+            self.dropped.load(Ordering::Acquire),
+            self.rejected.load(Ordering::Acquire),
+            lock(&self.messages).len(),
+        )
+    }
+}
+
+/// Sends into a queue topic. Cloneable: several tasks may send.
+pub struct QueueSender<T> {
+    queue: Arc<QueueSlot<T>>,
+}
+
+impl<T> Clone for QueueSender<T> {
+    fn clone(&self) -> Self {
+        QueueSender {
+            queue: self.queue.clone(),
+        }
+    }
+}
+
+impl<T> fmt::Debug for QueueSender<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("QueueSender")
+            .field("type", &type_name::<T>())
+            .field("spec", &self.queue.spec)
+            .finish()
+    }
+}
+
+impl<T> QueueSender<T> {
+    /// Queues `value` stamped `stamp`, applying the overflow policy when full.
+    pub fn send(&self, stamp: Timestamp, value: T) -> Result<Sent, QueueFull<T>> {
+        let mut messages = lock(&self.queue.messages);
+        let seq = self.queue.published.fetch_add(1, Ordering::AcqRel) + 1;
+        let mut sent = Sent::Queued;
+        if messages.len() >= self.queue.spec.capacity {
+            match self.queue.spec.overflow {
+                Overflow::Reject => {
+                    self.queue.rejected.fetch_add(1, Ordering::AcqRel);
+                    return Err(QueueFull(value));
+                }
+                Overflow::DropOldest => {
+                    messages.pop_front();
+                    self.queue.dropped.fetch_add(1, Ordering::AcqRel);
+                    sent = Sent::DroppedOldest;
+                }
+            }
+        }
+        messages.push_back(Message { stamp, seq, value });
+        Ok(sent)
+    }
+
+    pub fn dropped(&self) -> u64 {
+        self.queue.dropped.load(Ordering::Acquire)
+    }
+
+    pub fn rejected(&self) -> u64 {
+        self.queue.rejected.load(Ordering::Acquire)
+    }
+}
+
+/// The one receiver of a queue topic.
+pub struct QueueReceiver<T> {
+    queue: Arc<QueueSlot<T>>,
+}
+
+impl<T> fmt::Debug for QueueReceiver<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("QueueReceiver")
+            .field("type", &type_name::<T>())
+            .field("spec", &self.queue.spec)
+            .finish()
+    }
+}
+
+impl<T> QueueReceiver<T> {
+    /// The oldest waiting message.
+    pub fn recv(&mut self) -> Option<Message<T>> {
+        lock(&self.queue.messages).pop_front()
+    }
+
+    /// Every waiting message, oldest first.
+    pub fn drain(&mut self) -> Vec<Message<T>> {
+        lock(&self.queue.messages).drain(..).collect()
+    }
+
+    pub fn len(&self) -> usize {
+        lock(&self.queue.messages).len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Messages lost to [`Overflow::DropOldest`] so far.
+    pub fn dropped(&self) -> u64 {
+        self.queue.dropped.load(Ordering::Acquire)
+    }
+
+    /// Messages refused by [`Overflow::Reject`] so far.
+    pub fn rejected(&self) -> u64 {
+        self.queue.rejected.load(Ordering::Acquire)
+    }
+}
+
+impl<T> Drop for QueueReceiver<T> {
+    fn drop(&mut self) {
+        self.queue.receiver_taken.store(false, Ordering::Release);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, Clone, PartialEq)]
+    struct Marker {
+        x_m: f64,
+    }
+
+    #[test]
+    fn latest_value_reader_sees_newest_and_knows_whether_it_is_new() {
+        let bus = Bus::new();
+        let publisher = bus.publisher::<Marker>("marker").unwrap();
+        let mut subscriber = bus.subscriber::<Marker>("marker").unwrap();
+        assert!(!subscriber.updated());
+        assert!(subscriber.latest().is_none());
+
+        publisher.publish(Timestamp::from_millis(10), Marker { x_m: 1.0 });
+        publisher.publish(Timestamp::from_millis(20), Marker { x_m: 2.0 });
+        assert!(subscriber.updated());
+        let newest = subscriber.take_new().unwrap();
+        assert_eq!(newest.value, Marker { x_m: 2.0 });
+        assert_eq!(newest.stamp, Timestamp::from_millis(20));
+        assert_eq!(newest.seq, 2);
+        // Seen: not new any more, but still readable as the latest value.
+        assert!(!subscriber.updated());
+        assert!(subscriber.take_new().is_none());
+        assert_eq!(subscriber.latest().unwrap().seq, 2);
+
+        // A subscriber created late still gets the value already there, as new.
+        let mut late = bus.subscriber::<Marker>("marker").unwrap();
+        assert!(late.updated());
+        assert_eq!(late.take_new().unwrap().value.x_m, 2.0);
+
+        publisher.publish(Timestamp::from_millis(30), Marker { x_m: 3.0 });
+        assert_eq!(subscriber.peek().unwrap().seq, 3);
+        assert!(subscriber.updated(), "peek does not mark the message seen");
+    }
+
+    #[test]
+    fn wrong_type_or_kind_is_a_named_error() {
+        let bus = Bus::new();
+        let _publisher = bus.publisher::<Marker>("marker").unwrap();
+        match bus.subscriber::<f64>("marker") {
+            Err(BusError::TypeMismatch {
+                topic,
+                existing,
+                requested,
+            }) => {
+                assert_eq!(topic, "marker");
+                assert!(existing.ends_with("Marker"), "{existing}");
+                assert_eq!(requested, "f64");
+            }
+            other => panic!("expected a type mismatch, got {other:?}"),
+        }
+        assert_eq!(
+            bus.queue_sender::<Marker>("marker", QueueSpec::reject(4))
+                .unwrap_err(),
+            BusError::KindMismatch {
+                topic: "marker".into(),
+                existing: TopicKind::Latest,
+                requested: TopicKind::Queue,
+            }
+        );
+        assert_eq!(
+            bus.publisher::<Marker>("").unwrap_err(),
+            BusError::EmptyTopicName
+        );
+        let message = bus.subscriber::<u8>("marker").unwrap_err().to_string();
+        assert!(
+            message.contains("`marker`") && message.contains("u8"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn drop_oldest_queue_keeps_the_newest_and_counts_the_dropped() {
+        let bus = Bus::new();
+        let sender = bus
+            .queue_sender::<u32>("setpoints", QueueSpec::drop_oldest(3))
+            .unwrap();
+        let mut receiver = bus
+            .queue_receiver::<u32>("setpoints", QueueSpec::drop_oldest(3))
+            .unwrap();
+        for value in 1..=5 {
+            let sent = sender.send(Timestamp::from_millis(value.into()), value);
+            let expected = if value <= 3 {
+                Sent::Queued
+            } else {
+                Sent::DroppedOldest
+            };
+            assert_eq!(sent, Ok(expected));
+        }
+        assert_eq!(receiver.dropped(), 2);
+        assert_eq!(receiver.len(), 3);
+        let values: Vec<(u64, u32)> = receiver
+            .drain()
+            .into_iter()
+            .map(|message| (message.seq, message.value))
+            .collect();
+        assert_eq!(values, vec![(3, 3), (4, 4), (5, 5)]);
+        assert!(receiver.recv().is_none());
+        let info = &bus.topics()[0];
+        assert_eq!(
+            (info.published, info.dropped, info.rejected, info.depth),
+            (5, 2, 0, 0)
+        );
+    }
+
+    #[test]
+    fn reject_queue_hands_the_message_back_and_counts_it() {
+        let bus = Bus::new();
+        let sender = bus
+            .queue_sender::<&'static str>("events", QueueSpec::reject(2))
+            .unwrap();
+        let mut receiver = bus
+            .queue_receiver::<&'static str>("events", QueueSpec::reject(2))
+            .unwrap();
+        assert_eq!(sender.send(Timestamp::ZERO, "a"), Ok(Sent::Queued));
+        assert_eq!(sender.send(Timestamp::ZERO, "b"), Ok(Sent::Queued));
+        assert_eq!(sender.send(Timestamp::ZERO, "c"), Err(QueueFull("c")));
+        assert_eq!(sender.rejected(), 1);
+        assert_eq!(receiver.recv().unwrap().value, "a");
+        assert_eq!(sender.send(Timestamp::ZERO, "d"), Ok(Sent::Queued));
+        let rest: Vec<_> = receiver.drain().into_iter().map(|m| m.value).collect();
+        assert_eq!(rest, vec!["b", "d"]);
+        assert_eq!(receiver.dropped(), 0);
+    }
+
+    #[test]
+    fn a_queue_has_one_receiver_and_one_spec() {
+        let bus = Bus::new();
+        let spec = QueueSpec::reject(4);
+        let sender = bus.queue_sender::<u8>("q", spec).unwrap();
+        let receiver = bus.queue_receiver::<u8>("q", spec).unwrap();
+        assert_eq!(
+            bus.queue_receiver::<u8>("q", spec).unwrap_err(),
+            BusError::ReceiverTaken { topic: "q".into() }
+        );
+        assert!(matches!(
+            bus.queue_sender::<u8>("q", QueueSpec::drop_oldest(4)),
+            Err(BusError::QueueSpecMismatch { .. })
+        ));
+        assert_eq!(
+            bus.queue_sender::<u8>("z", QueueSpec::reject(0))
+                .unwrap_err(),
+            BusError::ZeroCapacity { topic: "z".into() }
+        );
+        // A restarted task takes the queue over with what was sent meanwhile.
+        sender.send(Timestamp::ZERO, 7).unwrap();
+        drop(receiver);
+        let mut again = bus.queue_receiver::<u8>("q", spec).unwrap();
+        assert_eq!(again.recv().unwrap().value, 7);
+    }
+
+    #[test]
+    fn publishers_on_other_threads_reach_subscribers() {
+        let bus = Bus::new();
+        let mut subscriber = bus.subscriber::<u64>("count").unwrap();
+        let handles: Vec<_> = (0..4)
+            .map(|_| {
+                let publisher = bus.publisher::<u64>("count").unwrap();
+                std::thread::spawn(move || {
+                    for i in 0..100 {
+                        publisher.publish(Timestamp::ZERO, i);
+                    }
+                })
+            })
+            .collect();
+        for handle in handles {
+            handle.join().unwrap();
+        }
+        assert_eq!(subscriber.latest().unwrap().seq, 400);
+    }
+}

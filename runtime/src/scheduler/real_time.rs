@@ -1,0 +1,464 @@
+//! Real time: every task on its own worker thread, activated by the wall clock.
+//!
+//! A worker sleeps until its task's next activation (parked with a timeout, so a level change
+//! or a stop wakes it at once), runs the step, measures it and books it with the same cadence
+//! logic as virtual time. CPU tasks may be pinned to their configured `cores`; the GPU task's
+//! worker holds the GPU lease for as long as the task lives. I/O (the MAVLink link, camera
+//! sources) belongs on tokio, outside these workers.
+
+use super::stats::StatsAccum;
+use super::{lock, Parts, Resources, SchedulerError, TaskRunner, TaskStats};
+use crate::bus::Bus;
+use crate::clock::{Clock, Timestamp, WallClock};
+use crate::config::Resource;
+use crate::task::{LevelError, MissionHealth, TaskHealth};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::mpsc::{self, Receiver, Sender};
+use std::sync::{Arc, Mutex};
+use std::thread::{self, JoinHandle};
+
+/// Whether workers are pinned to their task's configured `cores`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Pinning {
+    Off,
+    /// Pin where possible; a core this machine lacks is a warning (a mission configured for an
+    /// 8-core board still runs on a laptop).
+    #[default]
+    BestEffort,
+    /// A core that cannot be pinned is an error at start.
+    Required,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RealTimeOptions {
+    pub pinning: Pinning,
+    /// Linux: set the workers' timer slack to 1 ns (default 50 µs), so they wake on time.
+    pub fine_timer_slack: bool,
+}
+
+impl Default for RealTimeOptions {
+    fn default() -> Self {
+        RealTimeOptions {
+            pinning: Pinning::BestEffort,
+            fine_timer_slack: true,
+        }
+    }
+}
+
+/// What a worker and the scheduler share.
+struct WorkerShared {
+    stop: AtomicBool,
+    requested_level: AtomicUsize,
+}
+
+enum Command {
+    /// Start the task instance, then report.
+    Start,
+    /// First activation at this instant.
+    Go(Timestamp),
+    Abort,
+}
+
+struct Worker {
+    name: String,
+    resource: Resource,
+    cores: Vec<usize>,
+    level_count: usize,
+    shared: Arc<WorkerShared>,
+    stats: Arc<Mutex<StatsAccum>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+enum State {
+    Built(Vec<TaskRunner>),
+    Running,
+    Stopped,
+}
+
+/// The real-time scheduler. Build, [`start`](RealTimeScheduler::start), change levels live,
+/// read statistics, [`stop`](RealTimeScheduler::stop) (also on drop).
+pub struct RealTimeScheduler {
+    clock: WallClock,
+    workers: Vec<Worker>,
+    state: State,
+    bus: Bus,
+    resources: Resources,
+    health: MissionHealth,
+    options: RealTimeOptions,
+}
+
+impl RealTimeScheduler {
+    pub(crate) fn new(parts: Parts, options: RealTimeOptions) -> Self {
+        let workers = parts
+            .runners
+            .iter()
+            .map(|runner| Worker {
+                name: runner.name().to_string(),
+                resource: runner.config().resource,
+                cores: runner.config().cores.clone(),
+                level_count: runner.level_count(),
+                shared: Arc::new(WorkerShared {
+                    stop: AtomicBool::new(false),
+                    requested_level: AtomicUsize::new(runner.level()),
+                }),
+                stats: runner.stats_handle(),
+                thread: None,
+            })
+            .collect();
+        RealTimeScheduler {
+            clock: WallClock::new(),
+            workers,
+            state: State::Built(parts.runners),
+            bus: parts.bus,
+            resources: parts.resources,
+            health: parts.health,
+            options,
+        }
+    }
+
+    /// Spawns the workers, pins them, starts every task and, once all have started, releases
+    /// them together: every task's first activation is at the same instant.
+    pub fn start(&mut self) -> Result<(), SchedulerError> {
+        let runners = match std::mem::replace(&mut self.state, State::Running) {
+            State::Built(runners) => runners,
+            State::Running => return Err(SchedulerError::AlreadyStarted),
+            State::Stopped => {
+                self.state = State::Stopped;
+                return Err(SchedulerError::Stopped);
+            }
+        };
+        let (report_tx, report_rx) = mpsc::channel::<(usize, Result<(), String>)>();
+        let mut commands = Vec::with_capacity(runners.len());
+        for (index, runner) in runners.into_iter().enumerate() {
+            let (command_tx, command_rx) = mpsc::channel();
+            let shared = self.workers[index].shared.clone();
+            let clock = self.clock;
+            let options = self.options;
+            let report = report_tx.clone();
+            let spawned = thread::Builder::new()
+                .name(format!("qosrt-{}", runner.name()))
+                .spawn(move || {
+                    worker_main(index, runner, shared, clock, options, report, command_rx)
+                });
+            match spawned {
+                Ok(handle) => {
+                    self.workers[index].thread = Some(handle);
+                    commands.push(command_tx);
+                }
+                Err(source) => {
+                    self.abort(&commands);
+                    return Err(SchedulerError::Spawn {
+                        task: self.workers[index].name.clone(),
+                        source,
+                    });
+                }
+            }
+        }
+        drop(report_tx);
+        // Round 1: pinning.
+        let mut pin_error = None;
+        for _ in 0..commands.len() {
+            match report_rx.recv() {
+                Ok((index, Err(reason))) if pin_error.is_none() => {
+                    pin_error = Some((index, reason));
+                }
+                Ok(_) => {}
+                Err(_) => break,
+            }
+        }
+        if let Some((index, reason)) = pin_error {
+            self.abort(&commands);
+            let task = &self.workers[index];
+            return Err(SchedulerError::Pinning {
+                task: task.name.clone(),
+                cores: task.cores.clone(),
+                reason,
+            });
+        }
+        // Round 2: every task starts (a failing start is the task's failure, not the scheduler's).
+        for command in &commands {
+            let _ = command.send(Command::Start);
+        }
+        for _ in 0..commands.len() {
+            if report_rx.recv().is_err() {
+                break;
+            }
+        }
+        let first_activation = self.clock.now();
+        for command in &commands {
+            let _ = command.send(Command::Go(first_activation));
+        }
+        Ok(())
+    }
+
+    fn abort(&mut self, commands: &[Sender<Command>]) {
+        for command in commands {
+            let _ = command.send(Command::Abort);
+        }
+        self.join_workers();
+        self.state = State::Stopped;
+    }
+
+    /// Changes `task`'s QoS level; its worker applies it at once (it is woken), and the next
+    /// activation is re-computed from the new period: within one new period from now.
+    pub fn set_level(&self, task: &str, level: usize) -> Result<(), SchedulerError> {
+        let worker = self.worker(task)?;
+        if level >= worker.level_count {
+            return Err(LevelError::OutOfRange {
+                task: task.to_string(),
+                level,
+                count: worker.level_count,
+            }
+            .into());
+        }
+        worker
+            .shared
+            .requested_level
+            .store(level, Ordering::Release);
+        if let Some(thread) = &worker.thread {
+            thread.thread().unpark();
+        }
+        Ok(())
+    }
+
+    /// The level the task's worker runs at.
+    pub fn level(&self, task: &str) -> Option<usize> {
+        let worker = self.worker(task).ok()?;
+        Some(lock(&worker.stats).level)
+    }
+
+    fn worker(&self, task: &str) -> Result<&Worker, SchedulerError> {
+        self.workers
+            .iter()
+            .find(|worker| worker.name == task)
+            .ok_or_else(|| SchedulerError::UnknownTask {
+                task: task.to_string(),
+                known: self
+                    .workers
+                    .iter()
+                    .map(|worker| worker.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })
+    }
+
+    pub fn now(&self) -> Timestamp {
+        self.clock.now()
+    }
+
+    pub fn clock(&self) -> WallClock {
+        self.clock
+    }
+
+    pub fn bus(&self) -> &Bus {
+        &self.bus
+    }
+
+    pub fn resources(&self) -> &Resources {
+        &self.resources
+    }
+
+    pub fn health(&self) -> &MissionHealth {
+        &self.health
+    }
+
+    pub fn failed_tasks(&self) -> Vec<String> {
+        self.health.failed_tasks()
+    }
+
+    pub fn stats(&self) -> Vec<TaskStats> {
+        self.workers
+            .iter()
+            .map(|worker| self.snapshot(worker))
+            .collect()
+    }
+
+    pub fn task_stats(&self, task: &str) -> Option<TaskStats> {
+        self.worker(task).ok().map(|worker| self.snapshot(worker))
+    }
+
+    fn snapshot(&self, worker: &Worker) -> TaskStats {
+        let health = self
+            .health
+            .health_of(&worker.name)
+            .unwrap_or(TaskHealth::Running);
+        lock(&worker.stats).snapshot(&worker.name, health)
+    }
+
+    /// Stops every worker after its current step, calls each task's `stop` and waits for them.
+    /// Statistics stay readable.
+    pub fn stop(&mut self) {
+        if let State::Built(runners) = std::mem::replace(&mut self.state, State::Stopped) {
+            for mut runner in runners {
+                runner.abandon();
+            }
+        }
+        for worker in &self.workers {
+            worker.shared.stop.store(true, Ordering::Release);
+            if let Some(thread) = &worker.thread {
+                thread.thread().unpark();
+            }
+        }
+        self.join_workers();
+    }
+
+    fn join_workers(&mut self) {
+        for worker in &mut self.workers {
+            if let Some(thread) = worker.thread.take() {
+                if thread.join().is_err() {
+                    tracing::error!(task = %worker.name, resource = %worker.resource, "worker thread panicked outside its task");
+                }
+            }
+        }
+    }
+}
+
+impl Drop for RealTimeScheduler {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn worker_main(
+    index: usize,
+    mut runner: TaskRunner,
+    shared: Arc<WorkerShared>,
+    clock: WallClock,
+    options: RealTimeOptions,
+    report: Sender<(usize, Result<(), String>)>,
+    commands: Receiver<Command>,
+) {
+    if options.fine_timer_slack {
+        os::set_fine_timer_slack();
+    }
+    let cores = runner.config().cores.clone();
+    let pinned = match options.pinning {
+        Pinning::Off => Ok(()),
+        _ if cores.is_empty() => Ok(()),
+        Pinning::BestEffort => {
+            if let Err(reason) = os::pin_current_thread(&cores) {
+                tracing::warn!(task = %runner.name(), ?cores, %reason, "running unpinned");
+            }
+            Ok(())
+        }
+        Pinning::Required => {
+            os::pin_current_thread(&cores).map_err(|reason| format!("cores {cores:?}: {reason}"))
+        }
+    };
+    let _ = report.send((index, pinned));
+    if !matches!(commands.recv(), Ok(Command::Start)) {
+        runner.abandon();
+        return;
+    }
+    runner.start(clock.now(), clock.now());
+    let _ = report.send((index, Ok(())));
+    let first_activation = match commands.recv() {
+        Ok(Command::Go(at)) => at,
+        _ => {
+            runner.shutdown();
+            return;
+        }
+    };
+    runner.reschedule_first(first_activation);
+    drop(report);
+
+    // End of the last step: the time from it to the next clock read at the top of the loop
+    // (just before sleeping or stepping) is the worker's own bookkeeping per activation.
+    let mut last_finished: Option<Timestamp> = None;
+    let mut overhead_ns = None;
+    loop {
+        if shared.stop.load(Ordering::Acquire) {
+            break;
+        }
+        let requested = shared.requested_level.load(Ordering::Acquire);
+        if requested != runner.level() {
+            runner.change_level(requested, clock.now());
+        }
+        if !runner.is_scheduled() {
+            // Failed for good: wait for the stop.
+            thread::park();
+            continue;
+        }
+        let due = runner.next_due();
+        let now = clock.now();
+        if let Some(finished) = last_finished.take() {
+            overhead_ns = Some(now.as_nanos().saturating_sub(finished.as_nanos()));
+        }
+        if now < due {
+            // Woken early by set_level or stop (or spuriously): the loop re-checks both.
+            thread::park_timeout(due.saturating_duration_since(now));
+            continue;
+        }
+        let report = runner.activate(now);
+        let finished = clock.now();
+        runner.record(due, now, finished, &report, overhead_ns.take());
+        last_finished = Some(finished);
+    }
+    runner.shutdown();
+}
+
+#[cfg(target_os = "linux")]
+mod os {
+    /// Timer slack lets the kernel coalesce wake-ups up to 50 µs late by default; a periodic
+    /// task wants its wake-up on time.
+    pub fn set_fine_timer_slack() {
+        // SAFETY: PR_SET_TIMERSLACK takes one integer argument and changes only this thread's
+        // timer slack; no memory is passed.
+        let result = unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0) };
+        if result != 0 {
+            tracing::debug!(error = %std::io::Error::last_os_error(), "could not lower the timer slack");
+        }
+    }
+
+    /// Pins the calling thread to `cores`; an error names the cores this machine lacks.
+    pub fn pin_current_thread(cores: &[usize]) -> Result<(), String> {
+        let max = libc::CPU_SETSIZE as usize;
+        if let Some(core) = cores.iter().find(|&&core| core >= max) {
+            return Err(format!(
+                "core {core} is beyond the {max} cores the OS can address"
+            ));
+        }
+        // SAFETY: cpu_set_t is a plain bit array for which all-zero is the empty set; the CPU_*
+        // helpers index within it (cores were checked against CPU_SETSIZE above), and the
+        // sched_*affinity calls get its true size and act on the calling thread only (pid 0).
+        unsafe {
+            let mut wanted: libc::cpu_set_t = std::mem::zeroed();
+            libc::CPU_ZERO(&mut wanted);
+            for &core in cores {
+                libc::CPU_SET(core, &mut wanted);
+            }
+            let size = std::mem::size_of::<libc::cpu_set_t>();
+            if libc::sched_setaffinity(0, size, &wanted) != 0 {
+                return Err(format!(
+                    "{} (does this machine have these cores?)",
+                    std::io::Error::last_os_error()
+                ));
+            }
+            // The kernel accepts a set of which only some cores exist: check what we got.
+            let mut got: libc::cpu_set_t = std::mem::zeroed();
+            if libc::sched_getaffinity(0, size, &mut got) != 0 {
+                return Err(std::io::Error::last_os_error().to_string());
+            }
+            let missing: Vec<usize> = cores
+                .iter()
+                .copied()
+                .filter(|&core| !libc::CPU_ISSET(core, &got))
+                .collect();
+            if !missing.is_empty() {
+                return Err(format!(
+                    "cores {missing:?} are not available on this machine"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+mod os {
+    pub fn set_fine_timer_slack() {}
+
+    pub fn pin_current_thread(_cores: &[usize]) -> Result<(), String> {
+        Err("pinning is only supported on Linux".to_string())
+    }
+}
