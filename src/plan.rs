@@ -6,7 +6,7 @@ use crate::plot::{frontier_svg, FrontierPlot};
 use power_models::planner::{pareto_frontier, solve, PhasePlan, Plan};
 use runtime::catalog::PluginCatalog;
 use runtime::config::{load_file, Knob, MissionConfig};
-use runtime::energy::{load_mission_model, MissionModel};
+use runtime::energy::{energy_budget, load_mission_model, MissionModel};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -147,16 +147,9 @@ fn plan_report(model: &MissionModel, args: &PlanArgs) -> Result<PlanReport, Stri
     let problem = model.plan_problem();
     let frontier = pareto_frontier(&problem).map_err(|e| format!("cannot plan: {e}"))?;
     let spec = model.battery_spec(args.battery_wh)?;
-    // The pack delivers less the harder it is driven; rating it at the most demanding plan's
-    // mean power keeps the budget on the safe side for every plan.
-    let heaviest = frontier.last().ok_or("the mission has no possible plan")?;
-    let heaviest_duration_s: f64 = heaviest.phases.iter().map(|p| p.duration_s).sum();
-    let heaviest_power_w = heaviest.energy_wh * 3600.0 / heaviest_duration_s.max(1e-9);
-    let usable_wh = spec
-        .usable_energy_wh(heaviest_power_w, 1.0, 0.0)
-        .map_err(|e| format!("battery: {e}"))?;
-    let reserve_wh = usable_wh * reserve_fraction;
-    let available_wh = usable_wh - reserve_wh;
+    let budget = energy_budget(&problem, &spec, reserve_fraction).map_err(|e| e.to_string())?;
+    let usable_wh = budget.usable_wh;
+    let available_wh = budget.available_wh;
     let plan = solve(&problem, available_wh).map_err(|e| format!("cannot plan: {e}"))?;
     Ok(report_of(
         model,

@@ -301,6 +301,20 @@ const BAD_CASES: &[BadCase] = &[
         expect: &[at("25 #", 0, "internal_resistance_ohm is the whole pack's, in ohms")],
     },
     BadCase {
+        name: "a governor setting out of range",
+        replace: &[("replan_period_s = 10.0", "replan_period_s = -10.0")],
+        expect: &[at("-10.0", 0, "governor config: replan_period_s = -10 is invalid")],
+    },
+    BadCase {
+        name: "a misspelt governor setting",
+        replace: &[("min_dwell_s = 60.0", "min_dwel_s = 60.0")],
+        expect: &[at(
+            "min_dwel_s",
+            0,
+            "unknown key `min_dwel_s` in [governor]; did you mean `min_dwell_s`?",
+        )],
+    },
+    BadCase {
         name: "every mistake is listed, not only the first",
         replace: &[
             ("reserve_fraction = 0.25", "reserve_fraction = 2.5"),

@@ -60,6 +60,7 @@ fn khz_task(index: usize) -> TaskConfig {
         knob: Knob::PeriodMs,
         levels: vec![1.0],
         utility: vec![1.0],
+        restart: None,
         params: toml::Table::new(),
     }
 }

@@ -4,11 +4,55 @@
 
 use crate::config::{AxisScaleConfig, LoadedConfig, MissionConfig, PathSegment};
 use crate::diagnostic::{Diagnostic, FileReport};
-use power_models::battery::BatterySpec;
+use power_models::battery::{BatteryError, BatterySpec};
 use power_models::grid::{AxisScale, GridModel};
-use power_models::planner::{DurationByLevel, PlanPhase, PlanProblem, PlanTask, PowerTerm};
+use power_models::planner::{
+    solve, DurationByLevel, PlanError, PlanPhase, PlanProblem, PlanTask, PowerTerm,
+};
 use power_models::profile::Profile;
 use std::path::PathBuf;
+
+/// What a mission may spend: the pack's usable energy, rated at the most demanding plan's
+/// mean power (a pack delivers less the harder it is driven, so this is on the safe side for
+/// every lighter plan), less the reserve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EnergyBudget {
+    pub rating_power_w: f64,
+    pub usable_wh: f64,
+    pub reserve_wh: f64,
+    pub available_wh: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BudgetError {
+    #[error("cannot plan: {0}")]
+    Plan(#[from] PlanError),
+    #[error("battery: {0}")]
+    Battery(#[from] BatteryError),
+}
+
+/// The budget of `problem` on a full `pack` keeping `reserve_fraction` of its usable energy.
+pub fn energy_budget(
+    problem: &PlanProblem,
+    pack: &BatterySpec,
+    reserve_fraction: f64,
+) -> Result<EnergyBudget, BudgetError> {
+    let heaviest = solve(problem, f64::MAX)?;
+    let duration_s: f64 = heaviest.phases.iter().map(|p| p.duration_s).sum();
+    let rating_power_w = if duration_s > 0.0 {
+        heaviest.energy_wh * 3600.0 / duration_s
+    } else {
+        0.0
+    };
+    let usable_wh = pack.usable_energy_wh(rating_power_w, 1.0, 0.0)?;
+    let reserve_wh = usable_wh * reserve_fraction;
+    Ok(EnergyBudget {
+        rating_power_w,
+        usable_wh,
+        reserve_wh,
+        available_wh: usable_wh - reserve_wh,
+    })
+}
 
 /// A profile named by the config, loaded and turned into a grid model.
 #[derive(Debug, Clone)]

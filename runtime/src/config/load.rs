@@ -7,13 +7,21 @@ use super::validate::{validate, PathSegment};
 use super::{Battery, Flight, Mission, MissionConfig, PowerModelConfig, TaskConfig};
 use crate::catalog::PluginCatalog;
 use crate::diagnostic::{Diagnostic, FileReport};
+use crate::governor::GovernorConfig;
 use serde::de::DeserializeOwned;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use toml::de::{DeTable, DeValue, ValueDeserializer};
 use toml::Spanned;
 
-const SECTIONS: [&str; 5] = ["mission", "battery", "flight", "power_model", "task"];
+const SECTIONS: [&str; 6] = [
+    "mission",
+    "battery",
+    "flight",
+    "power_model",
+    "task",
+    "governor",
+];
 
 /// A config that passed every check.
 #[derive(Debug, Clone)]
@@ -161,7 +169,7 @@ fn deserialize_sections(
             diagnostics.push(Diagnostic::error(
                 Some(key.span()),
                 format!(
-                    "unknown section `{key_name}`{}; expected one of: [mission], [battery], [flight], [power_model], [[task]]",
+                    "unknown section `{key_name}`{}; expected one of: [mission], [battery], [flight], [power_model], [[task]], [governor]",
                     did_you_mean(key_name, SECTIONS)
                 ),
             ));
@@ -172,12 +180,18 @@ fn deserialize_sections(
     let flight = section::<Flight>(root, "flight", diagnostics);
     let power_model = section::<PowerModelConfig>(root, "power_model", diagnostics);
     let tasks = tasks(root, diagnostics);
+    // The governor's section is optional: absent means its defaults.
+    let governor = match root.get("governor") {
+        None => Some(None),
+        Some(_) => section::<GovernorConfig>(root, "governor", diagnostics).map(Some),
+    };
     Some(MissionConfig {
         mission: mission?,
         battery: battery?,
         flight: flight?,
         power_model: power_model?,
         tasks: tasks?,
+        governor: governor?,
     })
 }
 

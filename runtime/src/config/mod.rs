@@ -31,6 +31,9 @@ pub struct MissionConfig {
     pub power_model: PowerModelConfig,
     #[serde(rename = "task")]
     pub tasks: Vec<TaskConfig>,
+    /// In-flight re-planning; every key has a default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub governor: Option<crate::governor::GovernorConfig>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -4,6 +4,7 @@
 use super::suggest::did_you_mean;
 use super::{Knob, MissionConfig, Resource, TaskConfig};
 use crate::catalog::PluginCatalog;
+use crate::governor::GovernorError;
 use std::collections::HashSet;
 use std::fmt;
 
@@ -70,6 +71,15 @@ pub fn validate(config: &MissionConfig, plugins: &PluginCatalog) -> Vec<ConfigIs
     check_flight(config, &root.key("flight"), &mut issues);
     check_power_model(config, &root.key("power_model"), &mut issues);
     check_tasks(config, plugins, &root.key("task"), &mut issues);
+    if let Some(governor) = &config.governor {
+        if let Err(error) = governor.validate() {
+            let field = match &error {
+                GovernorError::BadConfig { field, .. } => *field,
+                _ => "",
+            };
+            issues.push(&root.key("governor").key(field), error.to_string());
+        }
+    }
     issues.0
 }
 
