@@ -1,6 +1,7 @@
 //! `qosrt`: the energy-aware QoS mission runtime's command line.
 
 mod check;
+mod frames;
 mod model;
 mod plan;
 mod plot;

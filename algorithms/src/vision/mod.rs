@@ -5,3 +5,4 @@ pub mod camera;
 pub mod image;
 pub mod nfold;
 pub mod render;
+pub mod landing_marker;
