@@ -19,6 +19,7 @@ pub fn load_gray(path: &Path) -> Result<GrayImage, String> {
 }
 
 /// Writes a grayscale image as PNG (or PGM with a `.pgm` extension).
+#[cfg(test)]
 pub fn save_gray(path: &Path, frame: &GrayImage) -> Result<(), String> {
     let buffer = image::GrayImage::from_raw(
         frame.width() as u32,

@@ -1,6 +1,7 @@
 //! `qosrt`: the energy-aware QoS mission runtime's command line.
 
 mod check;
+mod detect;
 mod frames;
 mod model;
 mod plan;
@@ -30,6 +31,19 @@ enum Command {
         #[arg(default_value = "qos.toml")]
         file: PathBuf,
         /// Print the summary (or the errors) as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Run the landing-marker detector on image files (PNG, JPEG, PGM).
+    Detect {
+        /// Image files.
+        #[arg(required = true)]
+        images: Vec<PathBuf>,
+        /// The pad's layout (TOML: pad_size_m, nfold_order, nfold_oriented, nfold_size_m,
+        /// dictionary, [[aruco]] id/size_m/centre_m); the reference pad by default.
+        #[arg(long, value_name = "FILE")]
+        layout: Option<PathBuf>,
+        /// Print the detections as JSON.
         #[arg(long)]
         json: bool,
     },
@@ -77,6 +91,11 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Check { file, json } => check::run(&file, json),
+        Command::Detect {
+            images,
+            layout,
+            json,
+        } => detect::run(&images, layout.as_deref(), json),
         Command::Model {
             profile,
             loo,

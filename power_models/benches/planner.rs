@@ -61,7 +61,7 @@ fn mission(task_count: usize, seed: u64) -> PlanProblem {
     let mut groups: Vec<Vec<usize>> = Vec::new();
     let mut next = 0;
     while next < task_count {
-        let size = if groups.len() % 2 == 0 && next + 1 < task_count {
+        let size = if groups.len().is_multiple_of(2) && next + 1 < task_count {
             2
         } else {
             1

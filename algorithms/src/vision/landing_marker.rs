@@ -117,7 +117,7 @@ impl LandingMarkerLayout {
                 return bad(format!("ArUco {}: size_m must be > 0", part.id));
             }
             let reach = part.centre_m[0].abs().max(part.centre_m[1].abs()) + part.size_m / 2.0;
-            if !(reach <= half_pad + 1e-9) {
+            if reach.is_nan() || reach > half_pad + 1e-9 {
                 return bad(format!("ArUco {} does not fit on the pad", part.id));
             }
             boxes.push((format!("ArUco {}", part.id), part.centre_m, part.size_m));
@@ -207,6 +207,9 @@ pub struct LandingMarkerObservation {
     pub aruco: Vec<ArucoSeen>,
     /// Pad metres → pixels, when ArUco markers gave one (row-major 3×3).
     pub homography: Option<[f64; 9]>,
+    /// The pad's side in pixels along its x axis, when ArUco markers gave it: how large a
+    /// region the next frame's search needs.
+    pub pad_size_px: Option<f64>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -316,14 +319,15 @@ impl LandingMarkerDetector {
         let homography = pad_homography(&seen);
 
         let predicted = homography.map(|h| apply(&h, [0.0, 0.0]));
-        let pad_scale_px = homography.map(|h| {
+        let pad_size_px = homography.map(|h| {
             let [x0, y0] = apply(&h, [0.0, 0.0]);
             let [x1, y1] = apply(&h, [self.layout.pad_size_m, 0.0]);
             ((x1 - x0).powi(2) + (y1 - y0).powi(2)).sqrt()
         });
-        let nfold = match (predicted, pad_scale_px) {
+        let nfold = match (predicted, pad_size_px) {
             (Some([u, v]), Some(scale_px)) => {
-                let half_px = (scale_px * 0.3).max(12.0);
+                // The markers place the centre to a few pixels: search a small box around it.
+                let half_px = (scale_px * 0.08).max(12.0);
                 self.nfold
                     .detect_in_roi(image, &Roi::around(u, v, half_px))?
                     .filter(|d| {
@@ -372,6 +376,7 @@ impl LandingMarkerDetector {
                     hamming_distance: m.hamming_distance,
                 })
                 .collect(),
+            pad_size_px,
             homography: homography.map(|h| {
                 let mut out = [0.0; 9];
                 for (i, value) in out.iter_mut().enumerate() {
@@ -390,7 +395,7 @@ fn pixel_rect(roi: &Roi, image: &ImageView<'_>) -> Option<PixelRect> {
     let y0 = roi.min_v_px.floor().max(0.0);
     let x1 = roi.max_u_px.ceil().min(image.width() as f64);
     let y1 = roi.max_v_px.ceil().min(image.height() as f64);
-    (x1 > x0 && y1 > y0).then(|| PixelRect {
+    (x1 > x0 && y1 > y0).then_some(PixelRect {
         x: x0 as usize,
         y: y0 as usize,
         width: (x1 - x0) as usize,
@@ -714,8 +719,10 @@ mod tests {
         assert!(
             matches!(off_pad.validate(), Err(LandingMarkerError::Layout(m)) if m.contains("does not fit"))
         );
-        let mut dictionary = LandingMarkerLayout::default();
-        dictionary.dictionary = "DICT_9X9".into();
+        let dictionary = LandingMarkerLayout {
+            dictionary: "DICT_9X9".into(),
+            ..LandingMarkerLayout::default()
+        };
         assert!(dictionary.validate().is_err());
     }
 

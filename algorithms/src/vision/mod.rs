@@ -3,6 +3,6 @@
 pub mod aruco;
 pub mod camera;
 pub mod image;
+pub mod landing_marker;
 pub mod nfold;
 pub mod render;
-pub mod landing_marker;
