@@ -6,6 +6,7 @@ mod frames;
 mod model;
 mod plan;
 mod plot;
+mod run;
 
 use clap::{Parser, Subcommand};
 use power_models::grid::AxisScale;
@@ -67,6 +68,22 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Run the mission's tasks onboard. For now as a dry run on synthetic inputs (rendered
+    /// frames, modelled battery telemetry): flight needs the MAVLink link.
+    Run {
+        /// The mission config.
+        #[arg(default_value = "qos.toml")]
+        file: PathBuf,
+        /// Start every task and run it on synthetic inputs, then print per-task statistics.
+        #[arg(long, required = true)]
+        dry_run: bool,
+        /// How long the dry run lasts.
+        #[arg(long, default_value_t = 5.0, value_name = "S")]
+        duration_s: f64,
+        /// The mission phase to run (default: the one with the most tasks).
+        #[arg(long, value_name = "NAME")]
+        phase: Option<String>,
+    },
     /// Plan the mission's QoS levels offline to fit the battery.
     Plan {
         /// The mission config.
@@ -117,6 +134,12 @@ fn main() -> ExitCode {
             knob_names,
             json,
         }),
+        Command::Run {
+            file,
+            dry_run: _,
+            duration_s,
+            phase,
+        } => run::run(&file, duration_s, phase),
         Command::Plan {
             file,
             battery_wh,

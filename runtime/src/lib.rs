@@ -6,6 +6,7 @@ pub mod catalog;
 pub mod clock;
 pub mod config;
 pub mod diagnostic;
+pub mod dry_run;
 pub mod energy;
 pub mod governor;
 pub mod plugins;
