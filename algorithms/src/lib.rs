@@ -1,4 +1,6 @@
 //! Pure computation for the mission, no I/O and no async: vision, estimation, control, tracking,
 //! stereo and the hazard CNN.
 
+pub mod control;
+pub mod estimation;
 pub mod vision;

@@ -1,0 +1,841 @@
+//! The landing state machine of seed 000 §3, driving the two-stage PID of §2.3.
+//!
+//! ```text
+//! Search ──fix──▶ Follow ──at the held height (IH at first), centred for a dwell──▶ Descend
+//! Descend ──off centre by the hysteresis factor──▶ Follow (holding the current height)
+//! Descend ──below LH, centred for the commit dwell──▶ FinalLanding (land command) ──▶ Landed
+//! Follow / Descend ──target lost > lost timeout──▶ Reacquire (climb to IH)
+//! Reacquire ──fix──▶ Follow at IH;  Reacquire ──lost > search timeout──▶ Search
+//! FinalLanding never aborts; touchdown reported by the autopilot → Landed from any mode.
+//! ```
+//!
+//! The seed sets an initial altitude IH (7.5 m in its simulation) at which following starts, and
+//! a final altitude LH (1.5 m) below which it sends the land command and stops steering. Our
+//! platform is a tractor moving at up to 3 m/s: a vertical landing with no horizontal control
+//! would drift off the pad by metres, so after the commit we keep streaming the PID's
+//! horizontal setpoint (or the platform's velocity when the target is out of view) together with
+//! the land command. What the commit does change is that nothing aborts it any more.
+//!
+//! Bad input: a non-finite time, height or platform velocity, or a time that does not increase,
+//! is a [`LandingError`] and leaves the machine untouched (the caller should hover, see
+//! [`LandingOutput::hover`]). A fix with non-finite numbers, or one whose covariance says it is
+//! too uncertain, counts as no fix: it is what a lost target looks like, and the machine handles
+//! it by its timeouts.
+
+use nalgebra::{Matrix3, Vector2, Vector3};
+use thiserror::Error;
+
+use super::pid::{HorizontalPid, PidConfig, PidError, PidInput};
+
+/// The mode of the landing procedure.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LandingMode {
+    /// No target yet: hold position at the initial height IH.
+    Search,
+    /// Target in view: track the pad and hold height (IH at first).
+    Follow,
+    /// Centred: track the pad and descend.
+    Descend,
+    /// Target lost too long before the commit: climb back to IH, keep the platform's velocity.
+    Reacquire,
+    /// Below LH and centred: the land command is sent; no abort any more.
+    FinalLanding,
+    /// On the pad.
+    Landed,
+}
+
+/// Errors from the configuration or from one step's input.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum LandingError {
+    #[error("landing config: {name} = {value} is invalid: {why}")]
+    Config {
+        name: &'static str,
+        value: f64,
+        why: &'static str,
+    },
+    #[error("landing input {name} is not finite; every input must be a finite number")]
+    NonFinite { name: &'static str },
+    #[error("landing input time_s = {time_s} does not increase (previous {previous_s})")]
+    TimeNotIncreasing { previous_s: f64, time_s: f64 },
+    #[error(transparent)]
+    Pid(#[from] PidError),
+}
+
+/// The landing procedure's configuration. Defaults: seed 000 §3's IH = 7.5 m and LH = 1.5 m; the
+/// rest are our choices, named so a mission can tune them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LandingConfig {
+    /// IH: the height above the platform at which following starts and to which an abort climbs.
+    pub initial_height_m: f64,
+    /// LH: below this height, once centred, the land command is sent.
+    pub final_landing_height_m: f64,
+    /// How close to the held height counts as "reached".
+    pub height_tolerance_m: f64,
+    /// The horizontal error that counts as centred at IH …
+    pub centred_radius_at_initial_height_m: f64,
+    /// … and at LH; linear in between, so the threshold tightens as the UAV comes down.
+    pub centred_radius_at_final_height_m: f64,
+    /// Descend → Follow when the error exceeds this factor × the centred radius (hysteresis).
+    pub recentre_factor: f64,
+    /// How long Follow must see the target centred before descending.
+    pub centred_dwell_s: f64,
+    /// How long the target must stay centred below LH before the commit; one lucky noisy
+    /// sample must not commit a landing.
+    pub commit_dwell_s: f64,
+    /// Descent speed in Descend while centred.
+    pub descent_speed_m_s: f64,
+    /// Descent speed after the commit.
+    pub final_descent_speed_m_s: f64,
+    /// Limit on climb/descent speed when holding a height.
+    pub max_height_hold_speed_m_s: f64,
+    /// Vertical speed per metre of height error when holding a height.
+    pub height_gain_per_s: f64,
+    /// Target unseen for longer than this before the commit → Reacquire.
+    pub lost_timeout_s: f64,
+    /// Target unseen for longer than this → Search.
+    pub search_timeout_s: f64,
+    /// A fix whose horizontal standard deviation (√ of the larger NE variance) exceeds this
+    /// counts as no fix.
+    pub max_fix_std_m: f64,
+    /// At or below this height in FinalLanding the UAV counts as landed.
+    pub touchdown_height_m: f64,
+    /// The platform's acceleration (differentiated from its velocity input) is fed forward
+    /// over this lead, about the autopilot's velocity-loop lag, so a turning tractor does not
+    /// pull the UAV off centre. 0 gives the seed's law (equations 26–27) unchanged.
+    pub platform_accel_lead_s: f64,
+    /// Low-pass time constant on that acceleration.
+    pub platform_accel_filter_tau_s: f64,
+    /// Limit on the commanded horizontal speed.
+    pub max_horizontal_speed_m_s: f64,
+    pub pid: PidConfig,
+}
+
+impl Default for LandingConfig {
+    fn default() -> Self {
+        Self {
+            initial_height_m: 7.5,
+            final_landing_height_m: 1.5,
+            height_tolerance_m: 0.3,
+            centred_radius_at_initial_height_m: 1.0,
+            centred_radius_at_final_height_m: 0.15,
+            recentre_factor: 2.0,
+            centred_dwell_s: 0.5,
+            commit_dwell_s: 0.3,
+            descent_speed_m_s: 0.7,
+            final_descent_speed_m_s: 1.0,
+            max_height_hold_speed_m_s: 1.0,
+            height_gain_per_s: 1.0,
+            lost_timeout_s: 1.0,
+            search_timeout_s: 10.0,
+            max_fix_std_m: 0.5,
+            touchdown_height_m: 0.05,
+            platform_accel_lead_s: 0.2,
+            platform_accel_filter_tau_s: 0.2,
+            max_horizontal_speed_m_s: 10.0,
+            pid: PidConfig::default(),
+        }
+    }
+}
+
+impl LandingConfig {
+    pub fn validate(&self) -> Result<(), LandingError> {
+        let positive = [
+            ("initial_height_m", self.initial_height_m),
+            ("final_landing_height_m", self.final_landing_height_m),
+            ("height_tolerance_m", self.height_tolerance_m),
+            (
+                "centred_radius_at_initial_height_m",
+                self.centred_radius_at_initial_height_m,
+            ),
+            (
+                "centred_radius_at_final_height_m",
+                self.centred_radius_at_final_height_m,
+            ),
+            ("descent_speed_m_s", self.descent_speed_m_s),
+            ("final_descent_speed_m_s", self.final_descent_speed_m_s),
+            ("max_height_hold_speed_m_s", self.max_height_hold_speed_m_s),
+            ("height_gain_per_s", self.height_gain_per_s),
+            ("lost_timeout_s", self.lost_timeout_s),
+            ("search_timeout_s", self.search_timeout_s),
+            ("max_fix_std_m", self.max_fix_std_m),
+            ("max_horizontal_speed_m_s", self.max_horizontal_speed_m_s),
+        ];
+        for (name, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(config_error(name, value, "must be a finite number > 0"));
+            }
+        }
+        for (name, value) in [
+            ("centred_dwell_s", self.centred_dwell_s),
+            ("commit_dwell_s", self.commit_dwell_s),
+            ("platform_accel_lead_s", self.platform_accel_lead_s),
+            (
+                "platform_accel_filter_tau_s",
+                self.platform_accel_filter_tau_s,
+            ),
+            ("touchdown_height_m", self.touchdown_height_m),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(config_error(name, value, "must be a finite number ≥ 0"));
+            }
+        }
+        if self.final_landing_height_m >= self.initial_height_m {
+            return Err(config_error(
+                "final_landing_height_m",
+                self.final_landing_height_m,
+                "LH must be below IH (initial_height_m)",
+            ));
+        }
+        if self.centred_radius_at_final_height_m > self.centred_radius_at_initial_height_m {
+            return Err(config_error(
+                "centred_radius_at_final_height_m",
+                self.centred_radius_at_final_height_m,
+                "the centred radius must tighten with altitude: at LH ≤ at IH",
+            ));
+        }
+        if !(self.recentre_factor.is_finite() && self.recentre_factor >= 1.0) {
+            return Err(config_error(
+                "recentre_factor",
+                self.recentre_factor,
+                "must be ≥ 1 (it is a hysteresis band)",
+            ));
+        }
+        if self.search_timeout_s < self.lost_timeout_s {
+            return Err(config_error(
+                "search_timeout_s",
+                self.search_timeout_s,
+                "must be ≥ lost_timeout_s",
+            ));
+        }
+        self.pid.validate()?;
+        Ok(())
+    }
+
+    /// The centred radius at a height: `centred_radius_at_final_height_m` at or below LH,
+    /// `centred_radius_at_initial_height_m` at or above IH, linear in between.
+    pub fn centred_radius_m(&self, height_m: f64) -> f64 {
+        let span_m = self.initial_height_m - self.final_landing_height_m;
+        let fraction = ((height_m - self.final_landing_height_m) / span_m).clamp(0.0, 1.0);
+        self.centred_radius_at_final_height_m
+            + fraction
+                * (self.centred_radius_at_initial_height_m - self.centred_radius_at_final_height_m)
+    }
+}
+
+fn config_error(name: &'static str, value: f64, why: &'static str) -> LandingError {
+    LandingError::Config { name, value, why }
+}
+
+/// The tracker's estimate of where the UAV is relative to the pad.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RelativeFix {
+    /// UAV position minus pad-centre position, NED.
+    pub uav_minus_pad_ned_m: Vector3<f64>,
+    /// Its covariance.
+    pub covariance_ned_m2: Matrix3<f64>,
+}
+
+impl RelativeFix {
+    /// A fix with a diagonal covariance of `std_m`² on every axis.
+    pub fn with_std(uav_minus_pad_ned_m: Vector3<f64>, std_m: f64) -> Self {
+        Self {
+            uav_minus_pad_ned_m,
+            covariance_ned_m2: Matrix3::identity() * (std_m * std_m),
+        }
+    }
+
+    /// √ of the larger horizontal variance, or None when any number is not finite.
+    fn horizontal_std_m(&self) -> Option<f64> {
+        let finite = self.uav_minus_pad_ned_m.iter().all(|v| v.is_finite())
+            && self.covariance_ned_m2.iter().all(|v| v.is_finite());
+        let variance_m2 = self.covariance_ned_m2[(0, 0)].max(self.covariance_ned_m2[(1, 1)]);
+        (finite && variance_m2 >= 0.0).then(|| variance_m2.sqrt())
+    }
+}
+
+/// One step's input.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LandingInput {
+    /// Monotonic time; must increase strictly from step to step.
+    pub time_s: f64,
+    /// The relative position estimate, if the tracker has one.
+    pub fix: Option<RelativeFix>,
+    /// Height of the UAV above the platform's landing surface.
+    pub height_above_pad_m: f64,
+    /// The platform's estimated horizontal velocity, NE.
+    pub platform_velocity_ne_m_s: Vector2<f64>,
+    /// The autopilot reports that it is on the ground (e.g. MAVLink EXTENDED_SYS_STATE).
+    pub touchdown_detected: bool,
+}
+
+/// One step's output.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LandingOutput {
+    pub mode: LandingMode,
+    /// Velocity setpoint, NED (z positive down).
+    pub velocity_setpoint_ned_m_s: Vector3<f64>,
+    /// Send (and keep sending) the land command.
+    pub land_command: bool,
+    /// Horizontal distance to the pad centre, when a usable fix came in this step.
+    pub horizontal_error_m: Option<f64>,
+    /// The centred threshold at the current height.
+    pub centred_radius_m: f64,
+}
+
+impl LandingOutput {
+    /// What a caller should command when [`LandingController::step`] fails: hover, no land
+    /// command unless the commit was already made.
+    pub fn hover(mode: LandingMode) -> Self {
+        Self {
+            mode,
+            velocity_setpoint_ned_m_s: Vector3::zeros(),
+            land_command: matches!(mode, LandingMode::FinalLanding | LandingMode::Landed),
+            horizontal_error_m: None,
+            centred_radius_m: 0.0,
+        }
+    }
+}
+
+/// The landing state machine with its PID.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LandingController {
+    config: LandingConfig,
+    pid: HorizontalPid,
+    mode: LandingMode,
+    last_time_s: Option<f64>,
+    last_pid_time_s: Option<f64>,
+    last_fix_time_s: Option<f64>,
+    centred_since_s: Option<f64>,
+    hold_height_m: f64,
+    /// The previous step's platform velocity, for its acceleration.
+    previous_platform_velocity_ne_m_s: Option<Vector2<f64>>,
+    platform_accel_ne_m_s2: Vector2<f64>,
+}
+
+impl LandingController {
+    pub fn new(config: LandingConfig) -> Result<Self, LandingError> {
+        config.validate()?;
+        Ok(Self {
+            pid: HorizontalPid::new(config.pid)?,
+            config,
+            mode: LandingMode::Search,
+            last_time_s: None,
+            last_pid_time_s: None,
+            last_fix_time_s: None,
+            centred_since_s: None,
+            hold_height_m: config.initial_height_m,
+            previous_platform_velocity_ne_m_s: None,
+            platform_accel_ne_m_s2: Vector2::zeros(),
+        })
+    }
+
+    pub fn mode(&self) -> LandingMode {
+        self.mode
+    }
+
+    pub fn config(&self) -> &LandingConfig {
+        &self.config
+    }
+
+    /// One step: update the mode from the input, then compute the setpoint for the new mode.
+    pub fn step(&mut self, input: &LandingInput) -> Result<LandingOutput, LandingError> {
+        let time_s = input.time_s;
+        let height_m = input.height_above_pad_m;
+        if !time_s.is_finite() {
+            return Err(LandingError::NonFinite { name: "time_s" });
+        }
+        if !height_m.is_finite() {
+            return Err(LandingError::NonFinite {
+                name: "height_above_pad_m",
+            });
+        }
+        if !input.platform_velocity_ne_m_s.iter().all(|v| v.is_finite()) {
+            return Err(LandingError::NonFinite {
+                name: "platform_velocity_ne_m_s",
+            });
+        }
+        if let Some(previous_s) = self.last_time_s {
+            if time_s <= previous_s {
+                return Err(LandingError::TimeNotIncreasing { previous_s, time_s });
+            }
+        }
+        // Work on a copy so that a failure below leaves the machine untouched.
+        let mut next = self.clone();
+        let output = next.advance(input)?;
+        *self = next;
+        Ok(output)
+    }
+
+    fn advance(&mut self, input: &LandingInput) -> Result<LandingOutput, LandingError> {
+        let c = self.config;
+        let time_s = input.time_s;
+        let height_m = input.height_above_pad_m;
+        if let (Some(previous_s), Some(previous_v)) =
+            (self.last_time_s, self.previous_platform_velocity_ne_m_s)
+        {
+            let dt_s = time_s - previous_s;
+            let raw = (input.platform_velocity_ne_m_s - previous_v) / dt_s;
+            let alpha = dt_s / (c.platform_accel_filter_tau_s + dt_s);
+            self.platform_accel_ne_m_s2 += alpha * (raw - self.platform_accel_ne_m_s2);
+        }
+        self.previous_platform_velocity_ne_m_s = Some(input.platform_velocity_ne_m_s);
+        self.last_time_s = Some(time_s);
+
+        let usable_fix = input.fix.filter(|fix| {
+            fix.horizontal_std_m()
+                .is_some_and(|std_m| std_m <= c.max_fix_std_m)
+        });
+        if usable_fix.is_some() {
+            self.last_fix_time_s = Some(time_s);
+        }
+        let lost_for_s = self
+            .last_fix_time_s
+            .map_or(f64::INFINITY, |seen_s| time_s - seen_s);
+        let error_m = usable_fix.map(|fix| fix.uav_minus_pad_ned_m.xy().norm());
+        let radius_m = c.centred_radius_m(height_m);
+        let centred = error_m.is_some_and(|e| e <= radius_m);
+
+        self.update_mode(input, lost_for_s, error_m, radius_m, centred);
+
+        let tracking_velocity = |this: &mut Self| -> Result<Vector2<f64>, LandingError> {
+            this.horizontal_tracking(input, usable_fix)
+        };
+        let (horizontal, vertical_down_m_s, land_command) = match self.mode {
+            LandingMode::Search => (
+                Vector2::zeros(),
+                self.hold_height(height_m, c.initial_height_m),
+                false,
+            ),
+            LandingMode::Follow => {
+                let h = tracking_velocity(self)?;
+                (h, self.hold_height(height_m, self.hold_height_m), false)
+            }
+            LandingMode::Descend => {
+                let h = tracking_velocity(self)?;
+                // Only descend while centred; hold height while off centre or out of view.
+                let down = if centred { c.descent_speed_m_s } else { 0.0 };
+                (h, down, false)
+            }
+            LandingMode::Reacquire => (
+                input.platform_velocity_ne_m_s,
+                self.hold_height(height_m, c.initial_height_m),
+                false,
+            ),
+            LandingMode::FinalLanding => {
+                let h = tracking_velocity(self)?;
+                (h, c.final_descent_speed_m_s, true)
+            }
+            LandingMode::Landed => (Vector2::zeros(), 0.0, true),
+        };
+        let horizontal = clamp_norm(horizontal, c.max_horizontal_speed_m_s);
+        Ok(LandingOutput {
+            mode: self.mode,
+            velocity_setpoint_ned_m_s: Vector3::new(horizontal.x, horizontal.y, vertical_down_m_s),
+            land_command,
+            horizontal_error_m: error_m,
+            centred_radius_m: radius_m,
+        })
+    }
+
+    fn update_mode(
+        &mut self,
+        input: &LandingInput,
+        lost_for_s: f64,
+        error_m: Option<f64>,
+        radius_m: f64,
+        centred: bool,
+    ) {
+        let c = self.config;
+        let time_s = input.time_s;
+        let height_m = input.height_above_pad_m;
+        if self.mode != LandingMode::Landed
+            && (input.touchdown_detected
+                || (self.mode == LandingMode::FinalLanding && height_m <= c.touchdown_height_m))
+        {
+            self.mode = LandingMode::Landed;
+            return;
+        }
+        match self.mode {
+            LandingMode::Landed | LandingMode::FinalLanding => {}
+            LandingMode::Search | LandingMode::Reacquire => {
+                if error_m.is_some() {
+                    self.enter_follow(c.initial_height_m);
+                } else if self.mode == LandingMode::Reacquire && lost_for_s > c.search_timeout_s {
+                    self.mode = LandingMode::Search;
+                }
+            }
+            LandingMode::Follow => {
+                if lost_for_s > c.lost_timeout_s {
+                    self.mode = LandingMode::Reacquire;
+                    return;
+                }
+                let at_height = (height_m - self.hold_height_m).abs() <= c.height_tolerance_m;
+                if at_height && centred {
+                    let since_s = *self.centred_since_s.get_or_insert(time_s);
+                    if time_s - since_s >= c.centred_dwell_s {
+                        self.mode = LandingMode::Descend;
+                        // The commit's dwell is timed afresh, below LH.
+                        self.centred_since_s = None;
+                    }
+                } else if error_m.is_some() {
+                    // A missing frame does not reset the dwell; a seen off-centre target does.
+                    self.centred_since_s = None;
+                }
+            }
+            LandingMode::Descend => {
+                if lost_for_s > c.lost_timeout_s {
+                    self.mode = LandingMode::Reacquire;
+                } else if error_m.is_some_and(|e| e > c.recentre_factor * radius_m) {
+                    self.enter_follow(height_m);
+                } else if centred && height_m <= c.final_landing_height_m {
+                    let since_s = *self.centred_since_s.get_or_insert(time_s);
+                    if time_s - since_s >= c.commit_dwell_s {
+                        self.mode = LandingMode::FinalLanding;
+                    }
+                } else if error_m.is_some() {
+                    self.centred_since_s = None;
+                }
+            }
+        }
+    }
+
+    fn enter_follow(&mut self, hold_height_m: f64) {
+        if self.mode != LandingMode::Descend {
+            // Coming from no target: the PID's memory is stale.
+            self.pid.reset();
+            self.last_pid_time_s = None;
+        }
+        self.mode = LandingMode::Follow;
+        self.hold_height_m = hold_height_m;
+        self.centred_since_s = None;
+    }
+
+    /// PID on a fix, the platform's velocity alone without one; both with the platform's
+    /// acceleration fed forward over the configured lead.
+    fn horizontal_tracking(
+        &mut self,
+        input: &LandingInput,
+        fix: Option<RelativeFix>,
+    ) -> Result<Vector2<f64>, LandingError> {
+        let feed_forward_ne_m_s = input.platform_velocity_ne_m_s
+            + self.platform_accel_ne_m_s2 * self.config.platform_accel_lead_s;
+        let Some(fix) = fix else {
+            return Ok(feed_forward_ne_m_s);
+        };
+        // dt since the PID last ran, so a dropout does not look like a jump in one step.
+        let Some(previous_s) = self.last_pid_time_s.replace(input.time_s) else {
+            // No interval yet: feed-forward only; the PID starts on the next step.
+            return Ok(feed_forward_ne_m_s);
+        };
+        let out = self.pid.step(&PidInput {
+            dt_s: input.time_s - previous_s,
+            height_m: input.height_above_pad_m,
+            uav_minus_pad_ne_m: fix.uav_minus_pad_ned_m.xy(),
+            setpoint_ne_m: Vector2::zeros(),
+            platform_velocity_ne_m_s: feed_forward_ne_m_s,
+        })?;
+        Ok(out.velocity_ne_m_s)
+    }
+
+    /// Vertical speed (down positive) towards a height above the pad.
+    fn hold_height(&self, height_m: f64, target_m: f64) -> f64 {
+        let limit = self.config.max_height_hold_speed_m_s;
+        (self.config.height_gain_per_s * (height_m - target_m)).clamp(-limit, limit)
+    }
+}
+
+fn clamp_norm(v: Vector2<f64>, max_norm: f64) -> Vector2<f64> {
+    let norm = v.norm();
+    if norm > max_norm {
+        v * (max_norm / norm)
+    } else {
+        v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DT_S: f64 = 0.05;
+
+    fn fix_at(north_m: f64, east_m: f64, height_m: f64) -> Option<RelativeFix> {
+        Some(RelativeFix::with_std(
+            Vector3::new(north_m, east_m, -height_m),
+            0.02,
+        ))
+    }
+
+    fn input(time_s: f64, fix: Option<RelativeFix>, height_m: f64) -> LandingInput {
+        LandingInput {
+            time_s,
+            fix,
+            height_above_pad_m: height_m,
+            platform_velocity_ne_m_s: Vector2::new(3.0, 0.0),
+            touchdown_detected: false,
+        }
+    }
+
+    /// Steps at DT_S from `t_s` for `duration_s` with the same fix offset and height; returns
+    /// the last output and the time after.
+    fn run(
+        c: &mut LandingController,
+        t_s: &mut f64,
+        duration_s: f64,
+        offset_m: Option<f64>,
+        height_m: f64,
+    ) -> LandingOutput {
+        let steps = (duration_s / DT_S).round() as usize;
+        let mut out = None;
+        for _ in 0..steps.max(1) {
+            *t_s += DT_S;
+            let fix = offset_m.and_then(|o| fix_at(o, 0.0, height_m));
+            out = Some(c.step(&input(*t_s, fix, height_m)).unwrap());
+        }
+        out.unwrap()
+    }
+
+    /// A controller brought to Descend at IH with the target centred.
+    fn descending() -> (LandingController, f64) {
+        let mut c = LandingController::new(LandingConfig::default()).unwrap();
+        let mut t_s = 0.0;
+        let out = run(&mut c, &mut t_s, 1.0, Some(0.0), 7.5);
+        assert_eq!(out.mode, LandingMode::Descend);
+        (c, t_s)
+    }
+
+    #[test]
+    fn defaults_are_the_seed_altitudes() {
+        let config = LandingConfig::default();
+        assert_eq!(config.initial_height_m, 7.5);
+        assert_eq!(config.final_landing_height_m, 1.5);
+        assert!(config.validate().is_ok());
+    }
+
+    #[test]
+    fn search_holds_at_ih_until_a_fix() {
+        let mut c = LandingController::new(LandingConfig::default()).unwrap();
+        let mut t_s = 0.0;
+        let out = run(&mut c, &mut t_s, 2.0, None, 5.0);
+        assert_eq!(out.mode, LandingMode::Search);
+        assert_eq!(out.velocity_setpoint_ned_m_s.xy(), Vector2::zeros());
+        // 2.5 m below IH: climb (NED down negative) at the hold limit.
+        assert_eq!(out.velocity_setpoint_ned_m_s.z, -1.0);
+        assert!(!out.land_command);
+        let out = run(&mut c, &mut t_s, DT_S, Some(2.0), 5.0);
+        assert_eq!(out.mode, LandingMode::Follow);
+    }
+
+    #[test]
+    fn follow_descends_only_at_ih_and_centred_for_the_dwell() {
+        let mut c = LandingController::new(LandingConfig::default()).unwrap();
+        let mut t_s = 0.0;
+        // Centred but still climbing to IH: stays in Follow and climbs.
+        let out = run(&mut c, &mut t_s, 2.0, Some(0.0), 5.0);
+        assert_eq!(out.mode, LandingMode::Follow);
+        assert!(out.velocity_setpoint_ned_m_s.z < 0.0);
+        // At IH but 1.5 m off centre (radius at IH is 1.0 m): stays.
+        let out = run(&mut c, &mut t_s, 2.0, Some(1.5), 7.5);
+        assert_eq!(out.mode, LandingMode::Follow);
+        // The PID pulls towards the pad on top of the platform's 3 m/s: uav is north of the
+        // pad, so the north velocity is below 3 m/s.
+        assert!(out.velocity_setpoint_ned_m_s.x < 3.0);
+        // Centred: not before the 0.5 s dwell …
+        let out = run(&mut c, &mut t_s, 0.4, Some(0.5), 7.5);
+        assert_eq!(out.mode, LandingMode::Follow);
+        // … then Descend, going down at the descent speed.
+        let out = run(&mut c, &mut t_s, 0.2, Some(0.5), 7.5);
+        assert_eq!(out.mode, LandingMode::Descend);
+        assert_eq!(out.velocity_setpoint_ned_m_s.z, 0.7);
+    }
+
+    #[test]
+    fn centred_threshold_tightens_with_altitude() {
+        let config = LandingConfig::default();
+        assert_eq!(config.centred_radius_m(7.5), 1.0);
+        assert_eq!(config.centred_radius_m(20.0), 1.0);
+        assert_eq!(config.centred_radius_m(1.5), 0.15);
+        assert_eq!(config.centred_radius_m(0.2), 0.15);
+        assert!((config.centred_radius_m(4.5) - 0.575).abs() < 1e-12);
+
+        // 0.5 m off is centred at 7.5 m but not at 3 m (radius 0.3625 m): the descent stops,
+        // and at 2 × the radius it goes back to Follow holding its height.
+        let (mut c, mut t_s) = descending();
+        let out = run(&mut c, &mut t_s, DT_S, Some(0.5), 3.0);
+        assert_eq!(out.mode, LandingMode::Descend);
+        assert_eq!(out.velocity_setpoint_ned_m_s.z, 0.0);
+        let out = run(&mut c, &mut t_s, DT_S, Some(0.8), 3.0);
+        assert_eq!(out.mode, LandingMode::Follow);
+        assert_eq!(out.velocity_setpoint_ned_m_s.z, 0.0);
+    }
+
+    #[test]
+    fn commit_below_lh_then_landed() {
+        let (mut c, mut t_s) = descending();
+        // Above LH: no commit however centred.
+        let out = run(&mut c, &mut t_s, 1.0, Some(0.0), 1.6);
+        assert_eq!(out.mode, LandingMode::Descend);
+        // Below LH but 0.2 m off (radius 0.15 m): no commit.
+        let out = run(&mut c, &mut t_s, 1.0, Some(0.2), 1.4);
+        assert_eq!(out.mode, LandingMode::Descend);
+        // Centred below LH: commit after the 0.3 s dwell.
+        let out = run(&mut c, &mut t_s, 0.2, Some(0.05), 1.4);
+        assert_eq!(out.mode, LandingMode::Descend);
+        let out = run(&mut c, &mut t_s, 0.2, Some(0.05), 1.4);
+        assert_eq!(out.mode, LandingMode::FinalLanding);
+        assert!(out.land_command);
+        assert_eq!(out.velocity_setpoint_ned_m_s.z, 1.0);
+        // Still steering horizontally: about the platform's velocity.
+        assert!((out.velocity_setpoint_ned_m_s.x - 3.0).abs() < 0.2);
+        let out = run(&mut c, &mut t_s, DT_S, Some(0.0), 0.04);
+        assert_eq!(out.mode, LandingMode::Landed);
+        assert!(out.land_command);
+        assert_eq!(out.velocity_setpoint_ned_m_s, Vector3::zeros());
+    }
+
+    #[test]
+    fn autopilot_touchdown_means_landed() {
+        let (mut c, mut t_s) = descending();
+        t_s += DT_S;
+        let mut i = input(t_s, fix_at(0.0, 0.0, 3.0), 3.0);
+        i.touchdown_detected = true;
+        assert_eq!(c.step(&i).unwrap().mode, LandingMode::Landed);
+    }
+
+    #[test]
+    fn lost_target_aborts_and_climbs_back_to_ih() {
+        let (mut c, mut t_s) = descending();
+        run(&mut c, &mut t_s, 2.0, Some(0.0), 4.0);
+        // A dropout shorter than the 1 s timeout: keep descending mode, hold height, feed the
+        // platform's velocity forward.
+        let out = run(&mut c, &mut t_s, 0.9, None, 4.0);
+        assert_eq!(out.mode, LandingMode::Descend);
+        assert_eq!(out.velocity_setpoint_ned_m_s.z, 0.0);
+        assert!((out.velocity_setpoint_ned_m_s.x - 3.0).abs() < 1e-9);
+        // Past the timeout: Reacquire, climbing towards IH.
+        let out = run(&mut c, &mut t_s, 0.2, None, 4.0);
+        assert_eq!(out.mode, LandingMode::Reacquire);
+        assert_eq!(out.velocity_setpoint_ned_m_s.z, -1.0);
+        assert!(!out.land_command);
+        // Seen again: Follow, holding IH.
+        let out = run(&mut c, &mut t_s, DT_S, Some(0.0), 5.0);
+        assert_eq!(out.mode, LandingMode::Follow);
+        assert!(out.velocity_setpoint_ned_m_s.z < 0.0);
+        // Lost for longer than the search timeout: Search.
+        let out = run(&mut c, &mut t_s, 1.5, None, 7.5);
+        assert_eq!(out.mode, LandingMode::Reacquire);
+        let out = run(&mut c, &mut t_s, 9.0, None, 7.5);
+        assert_eq!(out.mode, LandingMode::Search);
+        assert_eq!(out.velocity_setpoint_ned_m_s.xy(), Vector2::zeros());
+    }
+
+    #[test]
+    fn an_uncertain_or_nan_fix_counts_as_lost() {
+        let (mut c, mut t_s) = descending();
+        for k in 0..30 {
+            t_s += DT_S;
+            let fix = if k % 2 == 0 {
+                Some(RelativeFix::with_std(Vector3::new(0.0, 0.0, -7.0), 1.0))
+            } else {
+                Some(RelativeFix::with_std(
+                    Vector3::new(f64::NAN, 0.0, -7.0),
+                    0.02,
+                ))
+            };
+            let out = c.step(&input(t_s, fix, 7.0)).unwrap();
+            assert_eq!(out.horizontal_error_m, None);
+        }
+        assert_eq!(c.mode(), LandingMode::Reacquire);
+    }
+
+    #[test]
+    fn no_abort_after_commit() {
+        let (mut c, mut t_s) = descending();
+        run(&mut c, &mut t_s, 0.5, Some(0.0), 1.4);
+        assert_eq!(c.mode(), LandingMode::FinalLanding);
+        // The pad fills the view and the target is lost for 10 s: still landing.
+        let out = run(&mut c, &mut t_s, 10.0, None, 0.5);
+        assert_eq!(out.mode, LandingMode::FinalLanding);
+        assert!(out.land_command);
+        assert_eq!(out.velocity_setpoint_ned_m_s.z, 1.0);
+        assert!((out.velocity_setpoint_ned_m_s.x - 3.0).abs() < 1e-9);
+        // Nor does an off-centre fix undo it.
+        let out = run(&mut c, &mut t_s, 1.0, Some(2.0), 0.5);
+        assert_eq!(out.mode, LandingMode::FinalLanding);
+    }
+
+    #[test]
+    fn platform_acceleration_is_fed_forward() {
+        let mut c = LandingController::new(LandingConfig::default()).unwrap();
+        let mut t_s = 0.0;
+        run(&mut c, &mut t_s, 1.0, Some(0.0), 7.5);
+        // The platform speeds up east at 1 m/s²; with no fix the setpoint is the platform's
+        // velocity plus (filtered) acceleration × 0.2 s lead.
+        let mut out = None;
+        for k in 1..=60 {
+            t_s += DT_S;
+            let mut i = input(t_s, fix_at(0.0, 0.0, 7.5), 7.5);
+            i.platform_velocity_ne_m_s = Vector2::new(3.0, k as f64 * DT_S);
+            out = Some(c.step(&i).unwrap());
+        }
+        let out = out.unwrap();
+        let east_platform_m_s = 60.0 * DT_S;
+        let lead_m_s = out.velocity_setpoint_ned_m_s.y - east_platform_m_s;
+        assert!((lead_m_s - 0.2).abs() < 0.01, "lead {lead_m_s}");
+    }
+
+    #[test]
+    fn bad_input_is_an_error_and_changes_nothing() {
+        let (mut c, t_s) = descending();
+        let before = c.clone();
+        let mut i = input(t_s + DT_S, fix_at(0.0, 0.0, 5.0), 5.0);
+        i.time_s = f64::NAN;
+        assert_eq!(c.step(&i), Err(LandingError::NonFinite { name: "time_s" }));
+        let mut i = input(t_s + DT_S, None, f64::NAN);
+        assert!(matches!(c.step(&i), Err(LandingError::NonFinite { .. })));
+        i.height_above_pad_m = 5.0;
+        i.platform_velocity_ne_m_s.x = f64::INFINITY;
+        assert!(matches!(c.step(&i), Err(LandingError::NonFinite { .. })));
+        assert!(matches!(
+            c.step(&input(t_s, None, 5.0)),
+            Err(LandingError::TimeNotIncreasing { .. })
+        ));
+        assert_eq!(c, before);
+        let hover = LandingOutput::hover(c.mode());
+        assert_eq!(hover.velocity_setpoint_ned_m_s, Vector3::zeros());
+        assert!(!hover.land_command);
+        assert!(LandingOutput::hover(LandingMode::FinalLanding).land_command);
+    }
+
+    #[test]
+    fn bad_config_is_named() {
+        let config = LandingConfig {
+            final_landing_height_m: 8.0,
+            ..LandingConfig::default()
+        };
+        assert!(matches!(
+            LandingController::new(config),
+            Err(LandingError::Config {
+                name: "final_landing_height_m",
+                ..
+            })
+        ));
+        let config = LandingConfig {
+            lost_timeout_s: f64::NAN,
+            ..LandingConfig::default()
+        };
+        assert!(matches!(
+            LandingController::new(config),
+            Err(LandingError::Config {
+                name: "lost_timeout_s",
+                ..
+            })
+        ));
+        let mut config = LandingConfig::default();
+        config.pid.max_ctrl_speed_m_s = -1.0;
+        assert!(matches!(
+            LandingController::new(config),
+            Err(LandingError::Pid(_))
+        ));
+    }
+}

@@ -1,0 +1,569 @@
+//! Pixel → relative position: where the landing pad is, relative to the UAV, in NED.
+//!
+//! The seed (003, §IV-A steps 1–7) builds the camera's pose from roll and pitch, projects the image
+//! corners onto the ground at the UAV's altitude, fits the image-to-ground homography and rotates by
+//! yaw. For a planar ground that homography is exactly the map "ray through the pixel ∩ ground
+//! plane", so we intersect the ray directly: the same result, without the corner fit, and it stays
+//! exact with lens distortion (a homography cannot model distortion) and with a fisheye lens
+//! ([`FisheyeCamera`], Kannala–Brandt, for a wide-FOV camera like seed 000's). Step 8 (an ArUco id's known
+//! offset from the pad centre) is [`pad_centre_from_marker`].
+
+use nalgebra::{Point3, Unit, Vector2, Vector3};
+use thiserror::Error;
+
+use crate::vision::camera::{CameraError, CameraPose, PinholeCamera};
+
+/// A camera model as the projection needs it: pixels ↔ rays in the camera frame (x right, y down,
+/// z forward; pixel centres at integer coordinates, as in [`crate::vision::camera`]).
+pub trait CameraModel {
+    fn width_px(&self) -> usize;
+    fn height_px(&self) -> usize;
+    /// Pixel (u, v) of a camera-frame point; `None` where the model cannot see it.
+    fn project_point(&self, point_camera: &Point3<f64>) -> Option<(f64, f64)>;
+    /// Unit ray through pixel (u, v); `None` where the model has no inverse there.
+    fn unproject_pixel(&self, u_px: f64, v_px: f64) -> Option<Unit<Vector3<f64>>>;
+}
+
+impl CameraModel for PinholeCamera {
+    fn width_px(&self) -> usize {
+        self.width_px
+    }
+    fn height_px(&self) -> usize {
+        self.height_px
+    }
+    fn project_point(&self, point_camera: &Point3<f64>) -> Option<(f64, f64)> {
+        self.project(point_camera)
+    }
+    fn unproject_pixel(&self, u_px: f64, v_px: f64) -> Option<Unit<Vector3<f64>>> {
+        Some(self.unproject(u_px, v_px))
+    }
+}
+
+/// A fisheye camera, Kannala–Brandt / OpenCV `fisheye` model: the image radius grows with the
+/// angle θ off the axis, θ_d = θ(1 + k1θ² + k2θ⁴ + k3θ⁶ + k4θ⁸); all k = 0 is equidistant.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FisheyeCamera {
+    pub width_px: usize,
+    pub height_px: usize,
+    pub fx_px: f64,
+    pub fy_px: f64,
+    pub cx_px: f64,
+    pub cy_px: f64,
+    pub k: [f64; 4],
+}
+
+impl FisheyeCamera {
+    pub fn new(
+        width_px: usize,
+        height_px: usize,
+        fx_px: f64,
+        fy_px: f64,
+        cx_px: f64,
+        cy_px: f64,
+        k: [f64; 4],
+    ) -> Result<Self, CameraError> {
+        if width_px == 0 || height_px == 0 {
+            return Err(CameraError::EmptyImage {
+                width_px,
+                height_px,
+            });
+        }
+        if !(fx_px.is_finite() && fy_px.is_finite() && fx_px > 0.0 && fy_px > 0.0) {
+            return Err(CameraError::FocalLength { fx_px, fy_px });
+        }
+        if !(cx_px.is_finite() && cy_px.is_finite()) {
+            return Err(CameraError::PrincipalPoint { cx_px, cy_px });
+        }
+        if !k.iter().all(|c| c.is_finite()) {
+            return Err(CameraError::Distortion);
+        }
+        Ok(Self {
+            width_px,
+            height_px,
+            fx_px,
+            fy_px,
+            cx_px,
+            cy_px,
+            k,
+        })
+    }
+
+    fn distorted_angle(&self, theta_rad: f64) -> f64 {
+        let t2 = theta_rad * theta_rad;
+        let [k1, k2, k3, k4] = self.k;
+        theta_rad * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+    }
+
+    fn distorted_angle_slope(&self, theta_rad: f64) -> f64 {
+        let t2 = theta_rad * theta_rad;
+        let [k1, k2, k3, k4] = self.k;
+        1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
+    }
+}
+
+impl CameraModel for FisheyeCamera {
+    fn width_px(&self) -> usize {
+        self.width_px
+    }
+    fn height_px(&self) -> usize {
+        self.height_px
+    }
+    fn project_point(&self, point_camera: &Point3<f64>) -> Option<(f64, f64)> {
+        let radial = point_camera.x.hypot(point_camera.y);
+        // θ from atan2 so rays beyond 90° (a >180° lens) still project.
+        let theta_rad = radial.atan2(point_camera.z);
+        if !theta_rad.is_finite() || point_camera.coords.norm() < 1e-12 {
+            return None;
+        }
+        let theta_d = self.distorted_angle(theta_rad);
+        let (cos_phi, sin_phi) = if radial > 0.0 {
+            (point_camera.x / radial, point_camera.y / radial)
+        } else {
+            (1.0, 0.0)
+        };
+        Some((
+            self.cx_px + self.fx_px * theta_d * cos_phi,
+            self.cy_px + self.fy_px * theta_d * sin_phi,
+        ))
+    }
+    fn unproject_pixel(&self, u_px: f64, v_px: f64) -> Option<Unit<Vector3<f64>>> {
+        let (xd, yd) = (
+            (u_px - self.cx_px) / self.fx_px,
+            (v_px - self.cy_px) / self.fy_px,
+        );
+        let theta_d = xd.hypot(yd);
+        if !theta_d.is_finite() {
+            return None;
+        }
+        // Newton on θ_d(θ) = target from θ = θ_d; the lens polynomial is monotonic over a
+        // calibrated image, so a non-positive slope means the pixel is outside the valid region.
+        let mut theta_rad = theta_d;
+        for _ in 0..30 {
+            let slope = self.distorted_angle_slope(theta_rad);
+            if slope <= 1e-9 {
+                return None;
+            }
+            let step = (self.distorted_angle(theta_rad) - theta_d) / slope;
+            theta_rad -= step;
+            if step.abs() < 1e-15 {
+                break;
+            }
+        }
+        if !(0.0..std::f64::consts::PI).contains(&theta_rad) {
+            return None;
+        }
+        let (cos_phi, sin_phi) = if theta_d > 0.0 {
+            (xd / theta_d, yd / theta_d)
+        } else {
+            (1.0, 0.0)
+        };
+        let (s, c) = theta_rad.sin_cos();
+        Some(Unit::new_normalize(Vector3::new(
+            s * cos_phi,
+            s * sin_phi,
+            c,
+        )))
+    }
+}
+
+/// Why a pixel could not be turned into a relative position.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ProjectionError {
+    #[error("the altitude above the pad must be positive and finite, got {altitude_m} m")]
+    Altitude { altitude_m: f64 },
+    #[error(
+        "the attitude must be finite, got roll {roll_rad}, pitch {pitch_rad}, yaw {yaw_rad} rad"
+    )]
+    Attitude {
+        roll_rad: f64,
+        pitch_rad: f64,
+        yaw_rad: f64,
+    },
+    #[error("the pixel ({u_px}, {v_px}) is not finite")]
+    Pixel { u_px: f64, v_px: f64 },
+    #[error(
+        "the ray through pixel ({u_px}, {v_px}) does not meet the pad plane (it points at or above \
+         the horizon); check the attitude and the camera mounting"
+    )]
+    AboveHorizon { u_px: f64, v_px: f64 },
+}
+
+/// The vehicle's attitude as PX4 reports it: ZYX Euler angles of the FRD body in NED.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Attitude {
+    pub roll_rad: f64,
+    pub pitch_rad: f64,
+    pub yaw_rad: f64,
+}
+
+impl Attitude {
+    pub fn new(roll_rad: f64, pitch_rad: f64, yaw_rad: f64) -> Self {
+        Self {
+            roll_rad,
+            pitch_rad,
+            yaw_rad,
+        }
+    }
+
+    fn check(&self) -> Result<(), ProjectionError> {
+        if [self.roll_rad, self.pitch_rad, self.yaw_rad]
+            .iter()
+            .all(|a| a.is_finite())
+        {
+            Ok(())
+        } else {
+            Err(ProjectionError::Attitude {
+                roll_rad: self.roll_rad,
+                pitch_rad: self.pitch_rad,
+                yaw_rad: self.yaw_rad,
+            })
+        }
+    }
+}
+
+/// The NED position (north, east, down), metres, of the ground point seen at pixel (u, v),
+/// relative to the camera, for a downward camera on a vehicle at `attitude` that is
+/// `altitude_above_pad_m` above the pad's plane (see [`CameraPose::downward`] for the mounting).
+/// The down component equals the altitude.
+pub fn pad_relative_to_uav_ned_m(
+    camera: &impl CameraModel,
+    attitude: &Attitude,
+    altitude_above_pad_m: f64,
+    u_px: f64,
+    v_px: f64,
+) -> Result<Vector3<f64>, ProjectionError> {
+    if !(altitude_above_pad_m.is_finite() && altitude_above_pad_m > 0.0) {
+        return Err(ProjectionError::Altitude {
+            altitude_m: altitude_above_pad_m,
+        });
+    }
+    attitude.check()?;
+    if !(u_px.is_finite() && v_px.is_finite()) {
+        return Err(ProjectionError::Pixel { u_px, v_px });
+    }
+    // Only the camera's orientation matters: the ray from the camera, scaled until it has
+    // dropped by the altitude, is the relative position.
+    let pose = CameraPose::downward(
+        Vector3::zeros(),
+        attitude.roll_rad,
+        attitude.pitch_rad,
+        attitude.yaw_rad,
+    );
+    let above = ProjectionError::AboveHorizon { u_px, v_px };
+    let ray_camera = camera.unproject_pixel(u_px, v_px).ok_or(above.clone())?;
+    let ray_ned = pose.camera_to_world.rotation * ray_camera.into_inner();
+    // Rays within ~0.06° of the horizon would hit kilometres away: no use for landing.
+    if ray_ned.z < 1e-3 {
+        return Err(above);
+    }
+    let relative = ray_ned * (altitude_above_pad_m / ray_ned.z);
+    Ok(relative)
+}
+
+/// The ground footprint of the image: NED positions relative to the camera of the four image
+/// corners (outer pixel edges, clockwise from the top left), as in the seed's step 3. Fails when a
+/// corner looks at or above the horizon.
+pub fn image_footprint_ned_m(
+    camera: &impl CameraModel,
+    attitude: &Attitude,
+    altitude_above_pad_m: f64,
+) -> Result<[Vector3<f64>; 4], ProjectionError> {
+    let (right, bottom) = (
+        camera.width_px() as f64 - 0.5,
+        camera.height_px() as f64 - 0.5,
+    );
+    let corners = [(-0.5, -0.5), (right, -0.5), (right, bottom), (-0.5, bottom)];
+    let mut footprint = [Vector3::zeros(); 4];
+    for (slot, (u, v)) in footprint.iter_mut().zip(corners) {
+        *slot = pad_relative_to_uav_ned_m(camera, attitude, altitude_above_pad_m, u, v)?;
+    }
+    Ok(footprint)
+}
+
+/// The seed's step 8: the pad centre from one marker of the pad whose centre lies at
+/// `marker_offset_frd_m` = (forward, right) metres from the pad centre in the pad's own frame,
+/// the pad heading `pad_yaw_rad` from north.
+pub fn pad_centre_from_marker(
+    marker_relative_ned_m: &Vector3<f64>,
+    marker_offset_frd_m: &Vector2<f64>,
+    pad_yaw_rad: f64,
+) -> Vector3<f64> {
+    let (s, c) = pad_yaw_rad.sin_cos();
+    let offset_north_m = c * marker_offset_frd_m.x - s * marker_offset_frd_m.y;
+    let offset_east_m = s * marker_offset_frd_m.x + c * marker_offset_frd_m.y;
+    marker_relative_ned_m - Vector3::new(offset_north_m, offset_east_m, 0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vision::camera::RadialTangential;
+    use crate::vision::render::true_pixel;
+    use nalgebra::{Matrix3, Point3};
+
+    const MM: f64 = 1e-3;
+
+    fn camera() -> PinholeCamera {
+        PinholeCamera::new(640, 480, 500.0, 505.0, 321.0, 238.0, RadialTangential::NONE).unwrap()
+    }
+
+    fn close(a: &Vector3<f64>, b: &Vector3<f64>, tol_m: f64) -> bool {
+        (a - b).norm() < tol_m
+    }
+
+    #[test]
+    fn nadir_camera_scales_pixels_by_altitude_over_focal_length() {
+        let cam = camera();
+        let h = 10.0;
+        // 100 px right, 50 px up: east = 100/fx·h, north = 50/fy·h.
+        let got = pad_relative_to_uav_ned_m(
+            &cam,
+            &Attitude::default(),
+            h,
+            cam.cx_px + 100.0,
+            cam.cy_px - 50.0,
+        )
+        .unwrap();
+        let want = Vector3::new(50.0 / 505.0 * h, 100.0 / 500.0 * h, h);
+        assert!(close(&got, &want, MM), "{got} vs {want}");
+    }
+
+    #[test]
+    fn tilted_camera_adds_the_tilt_to_the_ray_angle() {
+        let cam = camera();
+        let h = 10.0;
+        let pitch = 0.25;
+        let alpha = 0.1f64;
+        // A pixel alpha above the image centre looks alpha further forward: north = h·tan(θ + α).
+        let v = cam.cy_px - cam.fy_px * alpha.tan();
+        let got = pad_relative_to_uav_ned_m(&cam, &Attitude::new(0.0, pitch, 0.0), h, cam.cx_px, v)
+            .unwrap();
+        let want = Vector3::new(h * (pitch + alpha).tan(), 0.0, h);
+        assert!(close(&got, &want, MM), "{got} vs {want}");
+        // Rolling right swings the optical axis to the left (west): east = −h·tan φ.
+        let roll = -0.2;
+        let got = pad_relative_to_uav_ned_m(
+            &cam,
+            &Attitude::new(roll, 0.0, 0.0),
+            h,
+            cam.cx_px,
+            cam.cy_px,
+        )
+        .unwrap();
+        let want = Vector3::new(0.0, -h * roll.tan(), h);
+        assert!(close(&got, &want, MM), "{got} vs {want}");
+    }
+
+    #[test]
+    fn yawed_vehicle_rotates_the_body_offset_into_ned() {
+        let cam = camera();
+        let h = 10.0;
+        let yaw = 2.3f64;
+        let (du, dv) = (80.0, 60.0);
+        let got = pad_relative_to_uav_ned_m(
+            &cam,
+            &Attitude::new(0.0, 0.0, yaw),
+            h,
+            cam.cx_px + du,
+            cam.cy_px + dv,
+        )
+        .unwrap();
+        // Body frame: forward = −dv/fy·h, right = du/fx·h; then rotate by yaw.
+        let (f, r) = (-dv / cam.fy_px * h, du / cam.fx_px * h);
+        let want = Vector3::new(
+            f * yaw.cos() - r * yaw.sin(),
+            f * yaw.sin() + r * yaw.cos(),
+            h,
+        );
+        assert!(close(&got, &want, MM), "{got} vs {want}");
+    }
+
+    #[test]
+    fn recovers_known_points_through_the_renderers_truth_with_distortion() {
+        let cam = camera().with_distortion(RadialTangential {
+            k1: -0.25,
+            k2: 0.06,
+            p1: 0.001,
+            p2: -0.0007,
+            k3: -0.005,
+        });
+        let attitudes = [
+            Attitude::new(0.0, 0.0, 0.0),
+            Attitude::new(0.12, -0.08, 1.1),
+            Attitude::new(-0.2, 0.15, -2.9),
+            Attitude::new(0.05, 0.3, 3.1),
+        ];
+        for (i, attitude) in attitudes.iter().enumerate() {
+            let uav_ned_m = Vector3::new(5.0 * i as f64, -3.0, -10.0);
+            let pose = CameraPose::downward(
+                uav_ned_m,
+                attitude.roll_rad,
+                attitude.pitch_rad,
+                attitude.yaw_rad,
+            );
+            for (dn, de) in [(0.0, 0.0), (1.5, -2.0), (-2.5, 1.0), (0.7, 3.0)] {
+                let pad = Point3::new(uav_ned_m.x + dn, uav_ned_m.y + de, 0.0);
+                let (u, v) = true_pixel(&cam, &pose, &pad).unwrap();
+                let got = pad_relative_to_uav_ned_m(&cam, attitude, 10.0, u, v).unwrap();
+                let want = pad.coords - uav_ned_m;
+                assert!(close(&got, &want, MM), "{attitude:?}: {got} vs {want}");
+            }
+        }
+    }
+
+    /// The seed's homography route, computed independently from the footprint's four corners by
+    /// the direct linear transform, agrees with the ray intersection for an undistorted camera.
+    #[test]
+    fn footprint_homography_agrees_with_the_ray_intersection() {
+        let cam = camera();
+        let attitude = Attitude::new(0.1, -0.15, 0.7);
+        let h = 10.0;
+        let footprint = image_footprint_ned_m(&cam, &attitude, h).unwrap();
+        let (r, b) = (cam.width_px as f64 - 0.5, cam.height_px as f64 - 0.5);
+        let corners = [(-0.5, -0.5), (r, -0.5), (r, b), (-0.5, b)];
+        // H maps (u, v, 1) to (n, e, 1) up to scale; with h33 = 1 the four pairs give 8 equations.
+        let mut a = nalgebra::SMatrix::<f64, 8, 8>::zeros();
+        let mut rhs = nalgebra::SVector::<f64, 8>::zeros();
+        for (k, ((u, v), g)) in corners.iter().zip(footprint.iter()).enumerate() {
+            let (x, y) = (g.x, g.y);
+            let rows = [
+                [*u, *v, 1.0, 0.0, 0.0, 0.0, -u * x, -v * x],
+                [0.0, 0.0, 0.0, *u, *v, 1.0, -u * y, -v * y],
+            ];
+            for (j, row) in rows.iter().enumerate() {
+                for (c, val) in row.iter().enumerate() {
+                    a[(2 * k + j, c)] = *val;
+                }
+            }
+            rhs[2 * k] = x;
+            rhs[2 * k + 1] = y;
+        }
+        let hv = a.lu().solve(&rhs).unwrap();
+        let hm = Matrix3::new(hv[0], hv[1], hv[2], hv[3], hv[4], hv[5], hv[6], hv[7], 1.0);
+        for (u, v) in [(320.0, 240.0), (10.0, 470.0), (600.0, 30.0), (123.4, 321.0)] {
+            let p = hm * Vector3::new(u, v, 1.0);
+            let via_h = Vector3::new(p.x / p.z, p.y / p.z, h);
+            let direct = pad_relative_to_uav_ned_m(&cam, &attitude, h, u, v).unwrap();
+            assert!(close(&via_h, &direct, MM), "{via_h} vs {direct}");
+        }
+    }
+
+    #[test]
+    fn step_eight_removes_the_markers_offset_in_the_pads_frame() {
+        // A pad heading east (yaw 90°) with a marker 1 m forward and 0.5 m right of its centre:
+        // forward is east and right is south, so the marker sits 1 m east and 0.5 m south.
+        let marker = Vector3::new(3.0 - 0.5, 4.0 + 1.0, 10.0);
+        let centre = pad_centre_from_marker(
+            &marker,
+            &Vector2::new(1.0, 0.5),
+            std::f64::consts::FRAC_PI_2,
+        );
+        assert!(
+            close(&centre, &Vector3::new(3.0, 4.0, 10.0), 1e-12),
+            "{centre}"
+        );
+    }
+
+    fn fisheye() -> FisheyeCamera {
+        FisheyeCamera::new(
+            1280,
+            960,
+            330.0,
+            332.0,
+            641.2,
+            478.5,
+            [0.02, -0.004, 0.001, -0.0002],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn equidistant_fisheye_puts_angle_times_focal_length_on_the_image() {
+        let cam = FisheyeCamera::new(1280, 960, 330.0, 330.0, 640.0, 480.0, [0.0; 4]).unwrap();
+        let h = 10.0;
+        // Nadir, a pixel θ·f to the right of centre looks θ off the axis: east = h·tan θ.
+        for theta in [0.0f64, 0.3, 0.9, 1.3] {
+            let got = pad_relative_to_uav_ned_m(
+                &cam,
+                &Attitude::default(),
+                h,
+                640.0 + 330.0 * theta,
+                480.0,
+            )
+            .unwrap();
+            let want = Vector3::new(0.0, h * theta.tan(), h);
+            assert!(close(&got, &want, MM), "{got} vs {want}");
+        }
+        // Beyond 90° off a nadir axis the ray looks up: no ground.
+        assert!(matches!(
+            pad_relative_to_uav_ned_m(&cam, &Attitude::default(), h, 640.0 + 330.0 * 1.7, 480.0),
+            Err(ProjectionError::AboveHorizon { .. })
+        ));
+    }
+
+    #[test]
+    fn fisheye_recovers_known_ground_points() {
+        let cam = fisheye();
+        for attitude in [
+            Attitude::new(0.0, 0.0, 0.4),
+            Attitude::new(0.15, -0.1, -1.9),
+            Attitude::new(-0.05, 0.25, 3.0),
+        ] {
+            let uav_ned_m = Vector3::new(2.0, 1.0, -10.0);
+            let pose = CameraPose::downward(
+                uav_ned_m,
+                attitude.roll_rad,
+                attitude.pitch_rad,
+                attitude.yaw_rad,
+            );
+            for (dn, de) in [(0.0, 0.0), (4.0, -6.0), (-9.0, 3.0), (12.0, 12.0)] {
+                let pad = Point3::new(uav_ned_m.x + dn, uav_ned_m.y + de, 0.0);
+                let (u, v) = cam.project_point(&pose.world_to_camera(&pad)).unwrap();
+                assert!(
+                    (-0.5..1279.5).contains(&u) && (-0.5..959.5).contains(&v),
+                    "{u}, {v}"
+                );
+                let got = pad_relative_to_uav_ned_m(&cam, &attitude, 10.0, u, v).unwrap();
+                let want = pad.coords - uav_ned_m;
+                assert!(close(&got, &want, MM), "{attitude:?}: {got} vs {want}");
+            }
+        }
+        assert!(matches!(
+            FisheyeCamera::new(640, 480, 0.0, 1.0, 0.0, 0.0, [0.0; 4]),
+            Err(CameraError::FocalLength { .. })
+        ));
+        assert!(matches!(
+            FisheyeCamera::new(640, 480, 1.0, 1.0, 0.0, 0.0, [f64::NAN, 0.0, 0.0, 0.0]),
+            Err(CameraError::Distortion)
+        ));
+    }
+
+    #[test]
+    fn bad_input_is_a_named_error() {
+        let cam = camera();
+        let level = Attitude::default();
+        assert!(matches!(
+            pad_relative_to_uav_ned_m(&cam, &level, 0.0, 1.0, 1.0),
+            Err(ProjectionError::Altitude { .. })
+        ));
+        assert!(matches!(
+            pad_relative_to_uav_ned_m(&cam, &level, f64::NAN, 1.0, 1.0),
+            Err(ProjectionError::Altitude { .. })
+        ));
+        assert!(matches!(
+            pad_relative_to_uav_ned_m(&cam, &level, 5.0, f64::INFINITY, 1.0),
+            Err(ProjectionError::Pixel { .. })
+        ));
+        assert!(matches!(
+            pad_relative_to_uav_ned_m(&cam, &Attitude::new(f64::NAN, 0.0, 0.0), 5.0, 1.0, 1.0),
+            Err(ProjectionError::Attitude { .. })
+        ));
+        // Pitched 80° nose up, the top of a 90°-FOV image looks above the horizon.
+        let steep = Attitude::new(0.0, 80f64.to_radians(), 0.0);
+        assert!(matches!(
+            pad_relative_to_uav_ned_m(&cam, &steep, 5.0, 320.0, 0.0),
+            Err(ProjectionError::AboveHorizon { .. })
+        ));
+        assert!(image_footprint_ned_m(&cam, &steep, 5.0).is_err());
+    }
+}
