@@ -11,7 +11,7 @@
 use nalgebra::{Point3, Unit, Vector2, Vector3};
 use thiserror::Error;
 
-use crate::vision::camera::{CameraError, CameraPose, PinholeCamera};
+use crate::vision::camera::{check_intrinsics, CameraError, CameraPose, PinholeCamera};
 
 /// A camera model as the projection needs it: pixels ↔ rays in the camera frame (x right, y down,
 /// z forward; pixel centres at integer coordinates, as in [`crate::vision::camera`]).
@@ -62,18 +62,7 @@ impl FisheyeCamera {
         cy_px: f64,
         k: [f64; 4],
     ) -> Result<Self, CameraError> {
-        if width_px == 0 || height_px == 0 {
-            return Err(CameraError::EmptyImage {
-                width_px,
-                height_px,
-            });
-        }
-        if !(fx_px.is_finite() && fy_px.is_finite() && fx_px > 0.0 && fy_px > 0.0) {
-            return Err(CameraError::FocalLength { fx_px, fy_px });
-        }
-        if !(cx_px.is_finite() && cy_px.is_finite()) {
-            return Err(CameraError::PrincipalPoint { cx_px, cy_px });
-        }
+        check_intrinsics(width_px, height_px, fx_px, fy_px, cx_px, cy_px)?;
         if !k.iter().all(|c| c.is_finite()) {
             return Err(CameraError::Distortion);
         }

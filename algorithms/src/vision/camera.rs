@@ -112,6 +112,31 @@ pub struct PinholeCamera {
     pub distortion: RadialTangential,
 }
 
+/// Checks the intrinsics every camera model shares: a non-empty image, positive finite focal
+/// lengths and a finite principal point.
+pub(crate) fn check_intrinsics(
+    width_px: usize,
+    height_px: usize,
+    fx_px: f64,
+    fy_px: f64,
+    cx_px: f64,
+    cy_px: f64,
+) -> Result<(), CameraError> {
+    if width_px == 0 || height_px == 0 {
+        return Err(CameraError::EmptyImage {
+            width_px,
+            height_px,
+        });
+    }
+    if !(fx_px.is_finite() && fy_px.is_finite() && fx_px > 0.0 && fy_px > 0.0) {
+        return Err(CameraError::FocalLength { fx_px, fy_px });
+    }
+    if !(cx_px.is_finite() && cy_px.is_finite()) {
+        return Err(CameraError::PrincipalPoint { cx_px, cy_px });
+    }
+    Ok(())
+}
+
 impl PinholeCamera {
     /// A camera from calibrated intrinsics; rejects empty images and non-finite or non-positive values.
     pub fn new(
@@ -123,18 +148,7 @@ impl PinholeCamera {
         cy_px: f64,
         distortion: RadialTangential,
     ) -> Result<Self, CameraError> {
-        if width_px == 0 || height_px == 0 {
-            return Err(CameraError::EmptyImage {
-                width_px,
-                height_px,
-            });
-        }
-        if !(fx_px.is_finite() && fy_px.is_finite() && fx_px > 0.0 && fy_px > 0.0) {
-            return Err(CameraError::FocalLength { fx_px, fy_px });
-        }
-        if !(cx_px.is_finite() && cy_px.is_finite()) {
-            return Err(CameraError::PrincipalPoint { cx_px, cy_px });
-        }
+        check_intrinsics(width_px, height_px, fx_px, fy_px, cx_px, cy_px)?;
         let d = distortion;
         if ![d.k1, d.k2, d.p1, d.p2, d.k3].iter().all(|c| c.is_finite()) {
             return Err(CameraError::Distortion);
