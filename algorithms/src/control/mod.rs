@@ -2,6 +2,7 @@
 //! seed 000 §3, and a point-mass vehicle for closed-loop tests and the simulator.
 
 pub mod landing;
+pub mod mpc;
 pub mod pid;
 pub mod point_mass;
 
