@@ -7,7 +7,7 @@ pub mod pid;
 pub mod point_mass;
 
 #[cfg(test)]
-mod closed_loop_tests {
+pub(crate) mod closed_loop_tests {
     //! The PID and the landing state machine flying the point mass onto a platform that moves
     //! at 3 m/s and makes a 180° turn.
 
@@ -23,7 +23,7 @@ mod closed_loop_tests {
 
     /// Pad position and velocity (NE): north at 3 m/s, from `turn_start_s` a half circle of
     /// radius 6 m to the east, then south at 3 m/s.
-    fn platform(t_s: f64, turn_start_s: f64) -> (Vector2<f64>, Vector2<f64>) {
+    pub(crate) fn platform(t_s: f64, turn_start_s: f64) -> (Vector2<f64>, Vector2<f64>) {
         let v = PLATFORM_SPEED_M_S;
         let turn_duration_s = PI * TURN_RADIUS_M / v;
         if t_s <= turn_start_s {
