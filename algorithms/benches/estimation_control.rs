@@ -1,11 +1,13 @@
 //! Time of one tracker step (predict at 50 Hz + a 10 fps vision fix, delay-compensated) and one
 //! two-stage PID step, against textbook baselines in the same run: the same Kalman equations on
-//! heap-allocated dynamic matrices, and a bare PID without anti-windup, filter or gain stages.
+//! heap-allocated dynamic matrices, and a bare PID without anti-windup, filter or gain stages;
+//! and one MPC step (data update + clarabel solve) at the default horizon.
 //!
 //! `cargo bench -p algorithms --bench estimation_control`
 
 use std::hint::black_box;
 
+use algorithms::control::mpc::{MpcConfig, MpcController, MpcInput};
 use algorithms::control::pid::{HorizontalPid, PidConfig, PidInput};
 use algorithms::estimation::kalman::{MotionInput, Tracker, TrackerConfig, VisionFix};
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -111,5 +113,33 @@ fn pid(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, kalman, pid);
+fn mpc(c: &mut Criterion) {
+    let mut group = c.benchmark_group("mpc");
+    group.sample_size(20);
+    group.measurement_time(std::time::Duration::from_secs(5));
+    // The default horizon (20 steps of 50 ms); the pad circles the vehicle so constraints
+    // come and go as in flight. The PID step above is the baseline a landing loop could use.
+    group.bench_function("MPC step, horizon 20", |b| {
+        let mut mpc = MpcController::new(MpcConfig {
+            solve_time_limit_s: 1.0,
+            ..MpcConfig::default()
+        })
+        .expect("config");
+        let mut t = 0.0_f64;
+        b.iter(|| {
+            t += 0.05;
+            let input = MpcInput {
+                uav_minus_pad_ne_m: Vector2::new(2.0 * t.sin(), 2.0 * t.cos()),
+                setpoint_ne_m: Vector2::zeros(),
+                uav_velocity_ne_m_s: Vector2::new(3.0, 0.0),
+                platform_velocity_ne_m_s: Vector2::new(3.0 * t.cos(), 3.0 * t.sin()),
+                platform_accel_ne_m_s2: Vector2::new(-0.5 * t.sin(), 0.5 * t.cos()),
+            };
+            mpc.step(black_box(&input)).expect("solve")
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, kalman, pid, mpc);
 criterion_main!(benches);
