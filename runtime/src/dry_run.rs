@@ -1,6 +1,6 @@
 //! A dry run: every configured task built from its plugin and stepped at its QoS rate in real
-//! time, on synthetic inputs — rendered camera frames of the landing pad and battery telemetry
-//! from the pack model at the planned power — with the governor choosing the levels, for a few
+//! time, on synthetic inputs — rendered camera frames of the landing pad, a hovering vehicle's
+//! state and battery telemetry from the pack model at the planned power — with the governor choosing the levels, for a few
 //! seconds; then the per-task statistics. It shows what the tasks cost on this computer before
 //! anything flies.
 
@@ -9,7 +9,8 @@ use crate::governor::{Governor, GovernorEvent};
 use crate::registry::PluginRegistry;
 use crate::scheduler::{RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats};
 use crate::telemetry::{BatteryTelemetry, MissionProgress};
-use crate::topics::{CameraFrame, CAMERA_FRAME};
+use crate::topics::{CameraFrame, VehicleState, CAMERA_FRAME, VEHICLE_STATE};
+use algorithms::estimation::projection::Attitude;
 use algorithms::vision::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::landing_marker::LandingMarkerLayout;
@@ -87,6 +88,18 @@ pub fn dry_run(
         .bus()
         .publisher::<CameraFrame>(CAMERA_FRAME)
         .map_err(|e| DryRunError::Camera(e.to_string()))?;
+    let vehicle = scheduler
+        .bus()
+        .publisher::<VehicleState>(VEHICLE_STATE)
+        .map_err(|e| DryRunError::Camera(e.to_string()))?;
+    let [roll, pitch, yaw] = HOVER_ATTITUDE_RAD;
+    let hovering = VehicleState {
+        attitude: Attitude::new(roll, pitch, yaw),
+        velocity_ned_m_s: Vector3::zeros(),
+        acceleration_ned_m_s2: Vector3::zeros(),
+        height_above_pad_m: HOVER_HEIGHT_M,
+        landed: false,
+    };
     apply_levels(&scheduler, model, &governor)?;
     scheduler.start()?;
 
@@ -99,6 +112,7 @@ pub fn dry_run(
     while started.elapsed() < options.duration {
         let now = started.elapsed();
         if now >= next_frame {
+            vehicle.publish(scheduler.now(), hovering);
             let image = frames[frames_published as usize % frames.len()].clone();
             camera.publish(
                 scheduler.now(),
@@ -185,12 +199,17 @@ fn describe(event: &GovernorEvent) -> String {
     }
 }
 
+/// The synthetic vehicle: hovering 5 m above the pad, slightly tilted.
+const HOVER_HEIGHT_M: f64 = 5.0;
+const HOVER_ATTITUDE_RAD: [f64; 3] = [0.04, -0.03, 0.2];
+
 /// A few frames of the reference pad drifting under a camera at 5 m, rendered once up front so
 /// the run measures the tasks, not the renderer.
 fn synthetic_frames() -> Result<Vec<Arc<GrayImage>>, DryRunError> {
     let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians())
         .map_err(|e| DryRunError::Camera(e.to_string()))?;
-    let pose = CameraPose::downward(Vector3::new(0.0, 0.0, -5.0), 0.04, -0.03, 0.2);
+    let [roll, pitch, yaw] = HOVER_ATTITUDE_RAD;
+    let pose = CameraPose::downward(Vector3::new(0.0, 0.0, -HOVER_HEIGHT_M), roll, pitch, yaw);
     (0..5)
         .map(|index| {
             let mut scene = Scene::new(Texture::field(3));

@@ -29,3 +29,42 @@ pub struct MarkerObservation {
     /// Whether the search was restricted to a region around the previous detection.
     pub used_roi: bool,
 }
+
+/// Latest vehicle state from the autopilot (MAVLink ATTITUDE, LOCAL_POSITION_NED, distance
+/// sensor), or from the simulator or a dry run's synthetic vehicle.
+pub const VEHICLE_STATE: &str = "vehicle/state";
+/// Latest estimate of the UAV's position relative to the platform.
+pub const RELATIVE_STATE: &str = "tracking/relative_state";
+/// Latest landing setpoint for the autopilot.
+pub const LANDING_SETPOINT: &str = "landing/setpoint";
+
+/// What the autopilot says about the vehicle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VehicleState {
+    pub attitude: algorithms::estimation::projection::Attitude,
+    pub velocity_ned_m_s: nalgebra::Vector3<f64>,
+    pub acceleration_ned_m_s2: nalgebra::Vector3<f64>,
+    /// Height of the camera above the landing pad's surface.
+    pub height_above_pad_m: f64,
+    /// The autopilot reports the vehicle on the ground.
+    pub landed: bool,
+}
+
+/// The tracker's output.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RelativeState {
+    pub estimate: algorithms::estimation::kalman::RelativeEstimate,
+    /// The platform's velocity, once two fixes far enough apart have come in.
+    pub platform_velocity_ned_m_s: Option<nalgebra::Vector3<f64>>,
+    /// When the last accepted vision fix was captured.
+    pub last_fix_time_s: Option<f64>,
+}
+
+/// The landing logic's output, for the autopilot link.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LandingSetpoint {
+    pub mode: algorithms::control::landing::LandingMode,
+    pub velocity_setpoint_ned_m_s: nalgebra::Vector3<f64>,
+    /// Keep sending the land command (with the setpoints: the pad is moving).
+    pub land_command: bool,
+}

@@ -1,5 +1,7 @@
 //! The task plugins built into qosrt, and the registry that holds them.
 
+pub mod kalman_tracker;
+pub mod landing_guidance;
 pub mod landing_marker;
 
 use crate::registry::{PluginRegistry, RegistryError};
@@ -8,5 +10,149 @@ use crate::registry::{PluginRegistry, RegistryError};
 pub fn builtin_registry() -> Result<PluginRegistry, RegistryError> {
     let mut registry = PluginRegistry::new();
     landing_marker::register(&mut registry)?;
+    kalman_tracker::register(&mut registry)?;
+    landing_guidance::register(&mut registry)?;
     Ok(registry)
+}
+
+#[cfg(test)]
+mod tests {
+    //! The landing loop's three plugins chained on the bus in virtual time: rendered frames →
+    //! detection → tracking → landing guidance.
+
+    use super::builtin_registry;
+    use crate::bus::Publisher;
+    use crate::catalog::PluginCatalog;
+    use crate::config::load_str;
+    use crate::scheduler::SchedulerBuilder;
+    use crate::task::{Task, TaskContext, TaskError};
+    use crate::topics::{
+        CameraFrame, LandingSetpoint, RelativeState, VehicleState, CAMERA_FRAME, LANDING_SETPOINT,
+        RELATIVE_STATE, VEHICLE_STATE,
+    };
+    use algorithms::control::landing::LandingMode;
+    use algorithms::estimation::projection::Attitude;
+    use algorithms::vision::camera::{CameraPose, PinholeCamera};
+    use algorithms::vision::landing_marker::LandingMarkerLayout;
+    use algorithms::vision::render::{render, RenderOptions, Scene, Texture};
+    use nalgebra::Vector3;
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    const PAD_NORTH_M: f64 = 0.6;
+    const PAD_EAST_M: f64 = -0.4;
+    const HEIGHT_M: f64 = 5.0;
+    const ROLL_RAD: f64 = 0.03;
+    const PITCH_RAD: f64 = -0.05;
+    const YAW_RAD: f64 = 0.4;
+
+    /// A hovering vehicle over a still pad: its camera's frames and its autopilot's state.
+    struct HoveringVehicle {
+        frame: Arc<algorithms::vision::image::GrayImage>,
+        frame_index: u64,
+        frames: Option<Publisher<CameraFrame>>,
+        state: Option<Publisher<VehicleState>>,
+    }
+
+    impl HoveringVehicle {
+        fn new() -> Self {
+            let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
+            let pose = CameraPose::downward(
+                Vector3::new(0.0, 0.0, -HEIGHT_M),
+                ROLL_RAD,
+                PITCH_RAD,
+                YAW_RAD,
+            );
+            let mut scene = Scene::new(Texture::field(5));
+            scene.patches = LandingMarkerLayout::default()
+                .patches(PAD_NORTH_M, PAD_EAST_M, 0.0, 0.9)
+                .unwrap();
+            let frame = render(&camera, &pose, &scene, &RenderOptions::default()).unwrap();
+            Self {
+                frame: Arc::new(frame),
+                frame_index: 0,
+                frames: None,
+                state: None,
+            }
+        }
+    }
+
+    impl Task for HoveringVehicle {
+        fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
+            self.frames = Some(ctx.bus().publisher(CAMERA_FRAME)?);
+            self.state = Some(ctx.bus().publisher(VEHICLE_STATE)?);
+            Ok(())
+        }
+
+        fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
+            let state = VehicleState {
+                attitude: Attitude::new(ROLL_RAD, PITCH_RAD, YAW_RAD),
+                velocity_ned_m_s: Vector3::zeros(),
+                acceleration_ned_m_s2: Vector3::zeros(),
+                height_above_pad_m: HEIGHT_M,
+                landed: false,
+            };
+            self.state.as_ref().unwrap().publish(ctx.now(), state);
+            let frame = CameraFrame {
+                frame_index: self.frame_index,
+                image: self.frame.clone(),
+            };
+            self.frames.as_ref().unwrap().publish(ctx.now(), frame);
+            self.frame_index += 1;
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn frames_become_a_relative_position_and_landing_setpoints() {
+        let mut registry = builtin_registry().unwrap();
+        registry
+            .register("hovering_vehicle", |_, _| {
+                Ok(Box::new(HoveringVehicle::new()))
+            })
+            .unwrap();
+        let reference = include_str!("../../../qos.toml");
+        let config = load_str(reference, None, &PluginCatalog::builtin()).unwrap();
+        let mut vehicle = config.task("detection").unwrap().clone();
+        vehicle.name = "vehicle".into();
+        vehicle.plugin = "hovering_vehicle".into();
+        vehicle.params = toml::Table::new();
+        let mut builder = SchedulerBuilder::new(&registry);
+        builder.task(&vehicle);
+        for name in ["detection", "tracking", "landing"] {
+            builder.task(config.task(name).unwrap());
+        }
+        let mut scheduler = builder.build_virtual().unwrap();
+        let mut relative = scheduler
+            .bus()
+            .subscriber::<RelativeState>(RELATIVE_STATE)
+            .unwrap();
+        let mut setpoints = scheduler
+            .bus()
+            .subscriber::<LandingSetpoint>(LANDING_SETPOINT)
+            .unwrap();
+        scheduler.start().unwrap();
+        scheduler.run_for(Duration::from_secs(2)).unwrap();
+
+        let estimate = relative.latest().expect("a relative state").value.estimate;
+        // UAV − pad, NED: the vehicle is at the origin, HEIGHT_M above the pad.
+        let truth = Vector3::new(-PAD_NORTH_M, -PAD_EAST_M, -HEIGHT_M);
+        let error_m = (estimate.uav_relative_ned_m - truth).norm();
+        assert!(
+            error_m < 0.05,
+            "estimate {:?}, error {error_m} m",
+            estimate.uav_relative_ned_m
+        );
+        let setpoint = setpoints.latest().expect("a setpoint").value;
+        assert_ne!(setpoint.mode, LandingMode::Search, "{setpoint:?}");
+        assert!(setpoint
+            .velocity_setpoint_ned_m_s
+            .iter()
+            .all(|v| v.is_finite()));
+        for name in ["detection", "tracking", "landing"] {
+            let stats = scheduler.task_stats(name).unwrap();
+            assert_eq!(stats.failures, 0, "{name}: {stats:?}");
+            assert!(stats.activations > 10, "{name}: {stats:?}");
+        }
+    }
 }

@@ -1,0 +1,198 @@
+//! The `kalman_tracker` plugin: turns landing-marker observations into the UAV's position
+//! relative to the platform (projection through the camera model, the seed's Kalman filter with
+//! delayed fixes, the platform's velocity), predicting between frames at the task's rate.
+
+use crate::bus::{Publisher, Subscriber};
+use crate::catalog::BUILTIN_PLUGINS;
+use crate::registry::{PluginRegistry, RegistryError};
+use crate::task::{parse_params, Task, TaskContext, TaskError};
+use crate::topics::{
+    MarkerObservation, RelativeState, VehicleState, LANDING_MARKER, RELATIVE_STATE, VEHICLE_STATE,
+};
+use algorithms::estimation::kalman::{FixOutcome, MotionInput, Tracker, TrackerConfig, VisionFix};
+use algorithms::estimation::platform_velocity::{
+    PlatformFix, PlatformVelocityConfig, PlatformVelocityEstimator,
+};
+use algorithms::estimation::projection::pad_relative_to_uav_ned_m;
+use algorithms::vision::camera::PinholeCamera;
+use nalgebra::{Matrix3, Vector3};
+use serde::Deserialize;
+
+pub const PLUGIN_NAME: &str = "kalman_tracker";
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Params {
+    /// Process noise q of the relative position (Q = dt·q·I), m²/s.
+    #[serde(default = "default_process_noise")]
+    process_noise_m2_per_s: f64,
+    /// Standard deviation of one vision fix, metres.
+    #[serde(default = "default_fix_std")]
+    fix_std_m: f64,
+    #[serde(default = "default_fov")]
+    camera_horizontal_fov_deg: f64,
+    #[serde(default = "default_width")]
+    image_width_px: usize,
+    #[serde(default = "default_height")]
+    image_height_px: usize,
+}
+
+fn default_process_noise() -> f64 {
+    0.05
+}
+fn default_fix_std() -> f64 {
+    0.1
+}
+fn default_fov() -> f64 {
+    60.0
+}
+fn default_width() -> usize {
+    640
+}
+fn default_height() -> usize {
+    480
+}
+
+pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
+    let info = BUILTIN_PLUGINS
+        .iter()
+        .find(|p| p.name == PLUGIN_NAME)
+        .cloned()
+        .expect("the catalogue lists every built-in plugin");
+    registry.register_plugin(info, |params, _config| {
+        Ok(Box::new(TrackerTask::new(parse_params(params)?)?) as Box<dyn Task>)
+    })?;
+    Ok(())
+}
+
+struct TrackerTask {
+    camera: PinholeCamera,
+    fix_variance_m2: f64,
+    tracker: Tracker,
+    platform: PlatformVelocityEstimator,
+    last_fix_time_s: Option<f64>,
+    vehicle: Option<Subscriber<VehicleState>>,
+    markers: Option<Subscriber<MarkerObservation>>,
+    output: Option<Publisher<RelativeState>>,
+}
+
+impl TrackerTask {
+    fn new(params: Params) -> Result<Self, TaskError> {
+        let bad = |e: &dyn std::fmt::Display| TaskError::Params(e.to_string());
+        if !(params.fix_std_m.is_finite() && params.fix_std_m > 0.0) {
+            return Err(TaskError::Params(format!(
+                "fix_std_m must be > 0, got {}",
+                params.fix_std_m
+            )));
+        }
+        let camera = PinholeCamera::from_fov(
+            params.image_width_px,
+            params.image_height_px,
+            params.camera_horizontal_fov_deg.to_radians(),
+        )
+        .map_err(|e| bad(&e))?;
+        let tracker = Tracker::new(TrackerConfig {
+            process_noise_m2_per_s: params.process_noise_m2_per_s,
+            ..TrackerConfig::default()
+        })
+        .map_err(|e| bad(&e))?;
+        Ok(Self {
+            camera,
+            fix_variance_m2: params.fix_std_m.powi(2),
+            tracker,
+            platform: PlatformVelocityEstimator::new(PlatformVelocityConfig::default())
+                .map_err(|e| bad(&e))?,
+            last_fix_time_s: None,
+            vehicle: None,
+            markers: None,
+            output: None,
+        })
+    }
+}
+
+impl Task for TrackerTask {
+    fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
+        self.vehicle = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
+        self.markers = Some(ctx.bus().subscriber(LANDING_MARKER)?);
+        self.output = Some(ctx.bus().publisher(RELATIVE_STATE)?);
+        Ok(())
+    }
+
+    fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
+        let (Some(vehicle), Some(markers), Some(output)) = (
+            self.vehicle.as_mut(),
+            self.markers.as_mut(),
+            self.output.as_ref(),
+        ) else {
+            return Err(TaskError::failed("stepped before start"));
+        };
+        // Without the vehicle's attitude and height there is nothing to project with.
+        let Some(state) = vehicle.latest().map(|m| m.value) else {
+            return Ok(());
+        };
+        let now_s = ctx.now().as_secs_f64();
+        let platform_velocity = self.platform.velocity().map(|p| p.velocity_ned_mps);
+        if self.tracker.estimate().is_some() {
+            let input = MotionInput {
+                uav_velocity_ned_mps: state.velocity_ned_m_s,
+                uav_acceleration_ned_mps2: state.acceleration_ned_m_s2,
+                platform_velocity_ned_mps: platform_velocity.unwrap_or_else(Vector3::zeros),
+            };
+            self.tracker
+                .predict(now_s, &input)
+                .map_err(|e| TaskError::failed(e.to_string()))?;
+        }
+        if let Some(message) = markers.take_new() {
+            if let Some(observation) = &message.value.observation {
+                let [u, v] = observation.centre_px;
+                match pad_relative_to_uav_ned_m(
+                    &self.camera,
+                    &state.attitude,
+                    state.height_above_pad_m,
+                    u,
+                    v,
+                ) {
+                    Ok(pad_relative) => {
+                        let capture_time_s = message.stamp.as_secs_f64();
+                        // The tracker's state is UAV − platform: the pad's position negated.
+                        let uav_relative = -pad_relative;
+                        let fix = VisionFix {
+                            capture_time_s,
+                            uav_relative_ned_m: uav_relative,
+                            covariance_m2: Matrix3::identity() * self.fix_variance_m2,
+                        };
+                        let outcome = self
+                            .tracker
+                            .correct(&fix)
+                            .map_err(|e| TaskError::failed(e.to_string()))?;
+                        if matches!(
+                            outcome,
+                            FixOutcome::Initialized | FixOutcome::Accepted { .. }
+                        ) {
+                            self.last_fix_time_s = Some(capture_time_s);
+                            let _ = self.platform.update(&PlatformFix {
+                                time_s: capture_time_s,
+                                uav_relative_ned_m: uav_relative,
+                                uav_velocity_ned_mps: state.velocity_ned_m_s,
+                                platform_yaw_rad: None,
+                            });
+                        }
+                    }
+                    // A pixel above the horizon or a bad height: skip the fix, keep predicting.
+                    Err(error) => tracing::debug!(task = ctx.name(), %error, "fix not projected"),
+                }
+            }
+        }
+        if let Some(estimate) = self.tracker.estimate() {
+            output.publish(
+                ctx.now(),
+                RelativeState {
+                    estimate,
+                    platform_velocity_ned_m_s: self.platform.velocity().map(|p| p.velocity_ned_mps),
+                    last_fix_time_s: self.last_fix_time_s,
+                },
+            );
+        }
+        Ok(())
+    }
+}
