@@ -3,9 +3,8 @@
 //! delayed fixes, the platform's velocity), predicting between frames at the task's rate.
 
 use crate::bus::{Publisher, Subscriber};
-use crate::catalog::BUILTIN_PLUGINS;
 use crate::registry::{PluginRegistry, RegistryError};
-use crate::task::{parse_params, Task, TaskContext, TaskError};
+use crate::task::{Task, TaskContext, TaskError};
 use crate::topics::{
     MarkerObservation, RelativeState, VehicleState, LANDING_MARKER, RELATIVE_STATE, VEHICLE_STATE,
 };
@@ -54,15 +53,7 @@ fn default_height() -> usize {
 }
 
 pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
-    let info = BUILTIN_PLUGINS
-        .iter()
-        .find(|p| p.name == PLUGIN_NAME)
-        .cloned()
-        .expect("the catalogue lists every built-in plugin");
-    registry.register_plugin(info, |params, _config| {
-        Ok(Box::new(TrackerTask::new(parse_params(params)?)?) as Box<dyn Task>)
-    })?;
-    Ok(())
+    super::register_builtin(registry, PLUGIN_NAME, TrackerTask::new)
 }
 
 struct TrackerTask {

@@ -2,9 +2,8 @@
 //! tracker's relative state into velocity setpoints and the land command.
 
 use crate::bus::{Publisher, Subscriber};
-use crate::catalog::BUILTIN_PLUGINS;
 use crate::registry::{PluginRegistry, RegistryError};
-use crate::task::{parse_params, Task, TaskContext, TaskError};
+use crate::task::{Task, TaskContext, TaskError};
 use crate::topics::{
     LandingSetpoint, RelativeState, VehicleState, LANDING_SETPOINT, RELATIVE_STATE, VEHICLE_STATE,
 };
@@ -39,15 +38,7 @@ fn default_max_age() -> f64 {
 }
 
 pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
-    let info = BUILTIN_PLUGINS
-        .iter()
-        .find(|p| p.name == PLUGIN_NAME)
-        .cloned()
-        .expect("the catalogue lists every built-in plugin");
-    registry.register_plugin(info, |params, _config| {
-        Ok(Box::new(GuidanceTask::new(parse_params(params)?)?) as Box<dyn Task>)
-    })?;
-    Ok(())
+    super::register_builtin(registry, PLUGIN_NAME, GuidanceTask::new)
 }
 
 struct GuidanceTask {

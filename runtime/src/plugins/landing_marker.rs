@@ -2,9 +2,8 @@
 //! task's QoS rate, reading the newest camera frame and publishing what it saw.
 
 use crate::bus::{Publisher, Subscriber};
-use crate::catalog::BUILTIN_PLUGINS;
 use crate::registry::{PluginRegistry, RegistryError};
-use crate::task::{parse_params, Task, TaskContext, TaskError};
+use crate::task::{Task, TaskContext, TaskError};
 use crate::topics::{CameraFrame, MarkerObservation, CAMERA_FRAME, LANDING_MARKER};
 use algorithms::vision::landing_marker::{
     LandingMarkerConfig, LandingMarkerDetector, LandingMarkerLayout,
@@ -50,15 +49,7 @@ fn default_roi() -> f64 {
 }
 
 pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
-    let info = BUILTIN_PLUGINS
-        .iter()
-        .find(|p| p.name == PLUGIN_NAME)
-        .cloned()
-        .expect("the catalogue lists every built-in plugin");
-    registry.register_plugin(info, |params, _config| {
-        Ok(Box::new(LandingMarkerTask::new(parse_params(params)?)?) as Box<dyn Task>)
-    })?;
-    Ok(())
+    super::register_builtin(registry, PLUGIN_NAME, LandingMarkerTask::new)
 }
 
 pub struct LandingMarkerTask {

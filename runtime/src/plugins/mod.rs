@@ -4,7 +4,32 @@ pub mod kalman_tracker;
 pub mod landing_guidance;
 pub mod landing_marker;
 
+use crate::catalog::BUILTIN_PLUGINS;
 use crate::registry::{PluginRegistry, RegistryError};
+use crate::task::{parse_params, Task, TaskError};
+use serde::de::DeserializeOwned;
+
+/// Registers the built-in plugin `name` with its catalogue entry (the resources and knobs it
+/// accepts); each task is made by `make` from its parsed `[task.params]`.
+fn register_builtin<P, T>(
+    registry: &mut PluginRegistry,
+    name: &'static str,
+    make: fn(P) -> Result<T, TaskError>,
+) -> Result<(), RegistryError>
+where
+    P: DeserializeOwned + 'static,
+    T: Task + 'static,
+{
+    let info = BUILTIN_PLUGINS
+        .iter()
+        .find(|p| p.name == name)
+        .cloned()
+        .expect("the catalogue lists every built-in plugin");
+    registry.register_plugin(info, move |params, _config| {
+        Ok(Box::new(make(parse_params(params)?)?) as Box<dyn Task>)
+    })?;
+    Ok(())
+}
 
 /// A registry with every built-in plugin; users add their own to it.
 pub fn builtin_registry() -> Result<PluginRegistry, RegistryError> {
