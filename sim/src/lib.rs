@@ -1,2 +1,4 @@
 //! The built-in simulator: multirotor, tractor, wind, battery, downward camera and a MAVLink
 //! autopilot, speaking to the runtime only through MAVLink and camera frames.
+
+pub mod flight;
