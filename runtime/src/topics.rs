@@ -68,3 +68,15 @@ pub struct LandingSetpoint {
     /// Keep sending the land command (with the setpoints: the pad is moving).
     pub land_command: bool,
 }
+
+/// The mission's current phase, published by whatever flies the mission (the simulator's
+/// mission sequencer, or `qosrt run`); tasks whose behaviour depends on the phase read it.
+pub const MISSION_PHASE: &str = "mission/phase";
+
+/// Which phase of the mission is flying.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MissionPhase {
+    /// Index into the config's `[[mission.phase]]`, in flight order.
+    pub index: usize,
+    pub name: Arc<str>,
+}

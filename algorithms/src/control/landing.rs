@@ -25,7 +25,18 @@
 use nalgebra::{Matrix3, Vector2, Vector3};
 use thiserror::Error;
 
+use super::mpc::{MpcConfig, MpcController, MpcError, MpcInput};
 use super::pid::{HorizontalPid, PidConfig, PidError, PidInput};
+
+/// Which controller steers horizontally while a fix is in hand.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum HorizontalController {
+    /// Seed 000's two-stage PID (`LandingConfig::pid`).
+    Pid,
+    /// The MPC; its `dt_s` must be the period at which the controller is stepped, see
+    /// [`LandingController::set_control_period`].
+    Mpc(MpcConfig),
+}
 
 /// The mode of the landing procedure.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -59,6 +70,8 @@ pub enum LandingError {
     TimeNotIncreasing { previous_s: f64, time_s: f64 },
     #[error(transparent)]
     Pid(#[from] PidError),
+    #[error(transparent)]
+    Mpc(#[from] MpcError),
 }
 
 /// The landing procedure's configuration. Defaults: seed 000 §3's IH = 7.5 m and LH = 1.5 m; the
@@ -108,6 +121,7 @@ pub struct LandingConfig {
     /// Limit on the commanded horizontal speed.
     pub max_horizontal_speed_m_s: f64,
     pub pid: PidConfig,
+    pub controller: HorizontalController,
 }
 
 impl Default for LandingConfig {
@@ -133,6 +147,7 @@ impl Default for LandingConfig {
             platform_accel_filter_tau_s: 0.2,
             max_horizontal_speed_m_s: 10.0,
             pid: PidConfig::default(),
+            controller: HorizontalController::Pid,
         }
     }
 }
@@ -208,6 +223,9 @@ impl LandingConfig {
             ));
         }
         self.pid.validate()?;
+        if let HorizontalController::Mpc(mpc) = self.controller {
+            mpc.validate()?;
+        }
         Ok(())
     }
 
@@ -266,6 +284,11 @@ pub struct LandingInput {
     pub platform_velocity_ne_m_s: Vector2<f64>,
     /// The autopilot reports that it is on the ground (e.g. MAVLink EXTENDED_SYS_STATE).
     pub touchdown_detected: bool,
+    /// The UAV's own horizontal velocity from the autopilot (the MPC's initial state).
+    pub uav_velocity_ne_m_s: Vector2<f64>,
+    /// Whether the mission allows the descent now; while false the machine follows at its
+    /// height and never leaves Follow for Descend (e.g. the tracking phase before landing).
+    pub descent_allowed: bool,
 }
 
 /// One step's output.
@@ -296,9 +319,83 @@ impl LandingOutput {
     }
 }
 
-/// The landing state machine with its PID.
-#[derive(Debug, Clone, PartialEq)]
+/// The landing state machine with its horizontal controller.
 pub struct LandingController {
+    machine: Machine,
+    /// Outside the machine because a clarabel solver cannot be cloned; a step only touches it
+    /// after every check that can fail has passed.
+    mpc: Option<MpcController>,
+}
+
+impl std::fmt::Debug for LandingController {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LandingController")
+            .field("machine", &self.machine)
+            .field("mpc", &self.mpc.as_ref().map(|m| *m.config()))
+            .finish()
+    }
+}
+
+impl LandingController {
+    pub fn new(config: LandingConfig) -> Result<Self, LandingError> {
+        let machine = Machine::new(config)?;
+        let mpc = match config.controller {
+            HorizontalController::Pid => None,
+            HorizontalController::Mpc(mpc) => Some(MpcController::new(mpc)?),
+        };
+        Ok(Self { machine, mpc })
+    }
+
+    pub fn mode(&self) -> LandingMode {
+        self.machine.mode
+    }
+
+    pub fn config(&self) -> &LandingConfig {
+        &self.machine.config
+    }
+
+    /// Re-times the MPC for a new control period (a QoS change of the landing task): its model
+    /// step becomes `period_s` and its horizon keeps its length in seconds. No-op for the PID,
+    /// whose integral and derivative use the measured interval.
+    pub fn set_control_period(&mut self, period_s: f64) -> Result<(), LandingError> {
+        let Some(mpc) = &self.mpc else {
+            return Ok(());
+        };
+        let old = *mpc.config();
+        if !(period_s.is_finite() && period_s > 0.0) {
+            return Err(config_error(
+                "control period_s",
+                period_s,
+                "must be a finite number > 0",
+            ));
+        }
+        let horizon_s = old.horizon_steps as f64 * old.dt_s;
+        let new = MpcConfig {
+            dt_s: period_s,
+            horizon_steps: ((horizon_s / period_s).round() as usize).max(1),
+            ..old
+        };
+        if new != old {
+            self.mpc = Some(MpcController::new(new)?);
+            self.machine.config.controller = HorizontalController::Mpc(new);
+        }
+        Ok(())
+    }
+
+    /// One step: update the mode from the input, then compute the setpoint for the new mode.
+    pub fn step(&mut self, input: &LandingInput) -> Result<LandingOutput, LandingError> {
+        if !input.uav_velocity_ne_m_s.iter().all(|v| v.is_finite()) {
+            return Err(LandingError::NonFinite {
+                name: "uav_velocity_ne_m_s",
+            });
+        }
+        self.machine.step(input, self.mpc.as_mut())
+    }
+}
+
+/// The state machine proper, with the PID's state.
+#[derive(Debug, Clone, PartialEq)]
+struct Machine {
     config: LandingConfig,
     pid: HorizontalPid,
     mode: LandingMode,
@@ -312,8 +409,8 @@ pub struct LandingController {
     platform_accel_ne_m_s2: Vector2<f64>,
 }
 
-impl LandingController {
-    pub fn new(config: LandingConfig) -> Result<Self, LandingError> {
+impl Machine {
+    fn new(config: LandingConfig) -> Result<Self, LandingError> {
         config.validate()?;
         Ok(Self {
             pid: HorizontalPid::new(config.pid)?,
@@ -329,16 +426,11 @@ impl LandingController {
         })
     }
 
-    pub fn mode(&self) -> LandingMode {
-        self.mode
-    }
-
-    pub fn config(&self) -> &LandingConfig {
-        &self.config
-    }
-
-    /// One step: update the mode from the input, then compute the setpoint for the new mode.
-    pub fn step(&mut self, input: &LandingInput) -> Result<LandingOutput, LandingError> {
+    fn step(
+        &mut self,
+        input: &LandingInput,
+        mpc: Option<&mut MpcController>,
+    ) -> Result<LandingOutput, LandingError> {
         let time_s = input.time_s;
         let height_m = input.height_above_pad_m;
         if !time_s.is_finite() {
@@ -359,14 +451,19 @@ impl LandingController {
                 return Err(LandingError::TimeNotIncreasing { previous_s, time_s });
             }
         }
-        // Work on a copy so that a failure below leaves the machine untouched.
+        // Work on a copy so that a failure below leaves the machine untouched. The MPC never
+        // fails a step (a failed solve flies its fallback), so it is stepped in place.
         let mut next = self.clone();
-        let output = next.advance(input)?;
+        let output = next.advance(input, mpc)?;
         *self = next;
         Ok(output)
     }
 
-    fn advance(&mut self, input: &LandingInput) -> Result<LandingOutput, LandingError> {
+    fn advance(
+        &mut self,
+        input: &LandingInput,
+        mut mpc: Option<&mut MpcController>,
+    ) -> Result<LandingOutput, LandingError> {
         let c = self.config;
         let time_s = input.time_s;
         let height_m = input.height_above_pad_m;
@@ -395,10 +492,19 @@ impl LandingController {
         let radius_m = c.centred_radius_m(height_m);
         let centred = error_m.is_some_and(|e| e <= radius_m);
 
+        let mode_before = self.mode;
         self.update_mode(input, lost_for_s, error_m, radius_m, centred);
+        if let Some(mpc) = mpc.as_deref_mut() {
+            // Coming back from no target: the previous command is stale.
+            if matches!(mode_before, LandingMode::Search | LandingMode::Reacquire)
+                && self.mode == LandingMode::Follow
+            {
+                mpc.reset();
+            }
+        }
 
-        let tracking_velocity = |this: &mut Self| -> Result<Vector2<f64>, LandingError> {
-            this.horizontal_tracking(input, usable_fix)
+        let mut tracking_velocity = |this: &mut Self| -> Result<Vector2<f64>, LandingError> {
+            this.horizontal_tracking(input, usable_fix, mpc.as_deref_mut())
         };
         let (horizontal, vertical_down_m_s, land_command) = match self.mode {
             LandingMode::Search => (
@@ -470,7 +576,7 @@ impl LandingController {
                     return;
                 }
                 let at_height = (height_m - self.hold_height_m).abs() <= c.height_tolerance_m;
-                if at_height && centred {
+                if at_height && centred && input.descent_allowed {
                     let since_s = *self.centred_since_s.get_or_insert(time_s);
                     if time_s - since_s >= c.centred_dwell_s {
                         self.mode = LandingMode::Descend;
@@ -510,18 +616,34 @@ impl LandingController {
         self.centred_since_s = None;
     }
 
-    /// PID on a fix, the platform's velocity alone without one; both with the platform's
-    /// acceleration fed forward over the configured lead.
+    /// The PID or the MPC on a fix, the platform's velocity alone without one; the PID with the
+    /// platform's acceleration fed forward over the configured lead, the MPC with it in its
+    /// prediction.
     fn horizontal_tracking(
         &mut self,
         input: &LandingInput,
         fix: Option<RelativeFix>,
+        mpc: Option<&mut MpcController>,
     ) -> Result<Vector2<f64>, LandingError> {
         let feed_forward_ne_m_s = input.platform_velocity_ne_m_s
             + self.platform_accel_ne_m_s2 * self.config.platform_accel_lead_s;
         let Some(fix) = fix else {
             return Ok(feed_forward_ne_m_s);
         };
+        if let Some(mpc) = mpc {
+            let result = mpc.step(&MpcInput {
+                uav_minus_pad_ne_m: fix.uav_minus_pad_ned_m.xy(),
+                setpoint_ne_m: Vector2::zeros(),
+                uav_velocity_ne_m_s: input.uav_velocity_ne_m_s,
+                platform_velocity_ne_m_s: input.platform_velocity_ne_m_s,
+                platform_accel_ne_m_s2: self.platform_accel_ne_m_s2,
+            });
+            return Ok(match result {
+                Ok(out) => out.velocity_ne_m_s,
+                // A late or failed solve flies the MPC's own safe fallback.
+                Err(error) => error.fallback_ne_m_s().unwrap_or(feed_forward_ne_m_s),
+            });
+        }
         // dt since the PID last ran, so a dropout does not look like a jump in one step.
         let Some(previous_s) = self.last_pid_time_s.replace(input.time_s) else {
             // No interval yet: feed-forward only; the PID starts on the next step.
@@ -573,6 +695,8 @@ mod tests {
             height_above_pad_m: height_m,
             platform_velocity_ne_m_s: Vector2::new(3.0, 0.0),
             touchdown_detected: false,
+            uav_velocity_ne_m_s: Vector2::new(3.0, 0.0),
+            descent_allowed: true,
         }
     }
 
@@ -787,8 +911,11 @@ mod tests {
     #[test]
     fn bad_input_is_an_error_and_changes_nothing() {
         let (mut c, t_s) = descending();
-        let before = c.clone();
+        let before = c.machine.clone();
         let mut i = input(t_s + DT_S, fix_at(0.0, 0.0, 5.0), 5.0);
+        i.uav_velocity_ne_m_s.y = f64::NAN;
+        assert!(matches!(c.step(&i), Err(LandingError::NonFinite { .. })));
+        i.uav_velocity_ne_m_s.y = 0.0;
         i.time_s = f64::NAN;
         assert_eq!(c.step(&i), Err(LandingError::NonFinite { name: "time_s" }));
         let mut i = input(t_s + DT_S, None, f64::NAN);
@@ -800,7 +927,7 @@ mod tests {
             c.step(&input(t_s, None, 5.0)),
             Err(LandingError::TimeNotIncreasing { .. })
         ));
-        assert_eq!(c, before);
+        assert_eq!(c.machine, before);
         let hover = LandingOutput::hover(c.mode());
         assert_eq!(hover.velocity_setpoint_ned_m_s, Vector3::zeros());
         assert!(!hover.land_command);

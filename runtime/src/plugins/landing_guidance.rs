@@ -1,13 +1,24 @@
 //! The `landing_guidance` plugin: the landing state machine and controller, turning the
 //! tracker's relative state into velocity setpoints and the land command.
+//!
+//! `controller = "pid"` (default) flies seed 000's two-stage PID; `controller = "mpc"` the MPC,
+//! whose model step is kept equal to the task's QoS period (re-timed on every level change,
+//! horizon `mpc_horizon_s` long). The descent starts only in the phase named by
+//! `descend_in_phase` (default `"landing"`) once a [`MissionPhase`] is published; with no phase
+//! on the bus (a dry run, a bench test) it is always allowed.
 
 use crate::bus::{Publisher, Subscriber};
 use crate::registry::{PluginRegistry, RegistryError};
+use crate::task::QosLevel;
 use crate::task::{Task, TaskContext, TaskError};
 use crate::topics::{
-    LandingSetpoint, RelativeState, VehicleState, LANDING_SETPOINT, RELATIVE_STATE, VEHICLE_STATE,
+    LandingSetpoint, MissionPhase, RelativeState, VehicleState, LANDING_SETPOINT, MISSION_PHASE,
+    RELATIVE_STATE, VEHICLE_STATE,
 };
-use algorithms::control::landing::{LandingConfig, LandingController, LandingInput, RelativeFix};
+use algorithms::control::landing::{
+    HorizontalController, LandingConfig, LandingController, LandingInput, RelativeFix,
+};
+use algorithms::control::mpc::MpcConfig;
 use nalgebra::Vector2;
 use serde::Deserialize;
 
@@ -25,6 +36,40 @@ struct Params {
     /// A relative state older than this counts as no fix.
     #[serde(default = "default_max_age")]
     max_fix_age_s: f64,
+    #[serde(default)]
+    controller: ControllerKind,
+    /// The MPC's horizon in seconds; its step count follows from the QoS period.
+    #[serde(default = "default_mpc_horizon")]
+    mpc_horizon_s: f64,
+    /// The MPC's per-axis speed and acceleration limits.
+    #[serde(default = "default_mpc_max_speed")]
+    mpc_max_speed_m_s: f64,
+    #[serde(default = "default_mpc_max_accel")]
+    mpc_max_accel_m_s2: f64,
+    /// The phase in which the descent may start.
+    #[serde(default = "default_descend_phase")]
+    descend_in_phase: String,
+}
+
+#[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+enum ControllerKind {
+    #[default]
+    Pid,
+    Mpc,
+}
+
+fn default_mpc_horizon() -> f64 {
+    1.0
+}
+fn default_mpc_max_speed() -> f64 {
+    MpcConfig::default().max_speed_m_s
+}
+fn default_mpc_max_accel() -> f64 {
+    MpcConfig::default().max_accel_m_s2
+}
+fn default_descend_phase() -> String {
+    "landing".into()
 }
 
 fn default_initial() -> f64 {
@@ -44,23 +89,53 @@ pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
 struct GuidanceTask {
     controller: LandingController,
     max_fix_age_s: f64,
+    descend_in_phase: String,
     vehicle: Option<Subscriber<VehicleState>>,
+    phase: Option<Subscriber<MissionPhase>>,
     relative: Option<Subscriber<RelativeState>>,
     output: Option<Publisher<LandingSetpoint>>,
 }
 
 impl GuidanceTask {
     fn new(params: Params) -> Result<Self, TaskError> {
+        let defaults = LandingConfig::default();
+        let controller = match params.controller {
+            ControllerKind::Pid => HorizontalController::Pid,
+            ControllerKind::Mpc => {
+                if !(params.mpc_horizon_s.is_finite() && params.mpc_horizon_s > 0.0) {
+                    return Err(TaskError::Params(format!(
+                        "mpc_horizon_s = {} must be a finite number > 0",
+                        params.mpc_horizon_s
+                    )));
+                }
+                // Timed for a 50 ms period until the scheduler sets the level's period.
+                let mpc = MpcConfig::default();
+                HorizontalController::Mpc(MpcConfig {
+                    horizon_steps: ((params.mpc_horizon_s / mpc.dt_s).round() as usize).max(1),
+                    max_speed_m_s: params.mpc_max_speed_m_s,
+                    max_accel_m_s2: params.mpc_max_accel_m_s2,
+                    ..mpc
+                })
+            }
+        };
         let controller = LandingController::new(LandingConfig {
             initial_height_m: params.initial_altitude_m,
             final_landing_height_m: params.final_altitude_m,
-            ..LandingConfig::default()
+            controller,
+            // The MPC predicts with the platform's acceleration: a fresher estimate suits it.
+            platform_accel_filter_tau_s: match params.controller {
+                ControllerKind::Pid => defaults.platform_accel_filter_tau_s,
+                ControllerKind::Mpc => 0.1,
+            },
+            ..defaults
         })
         .map_err(|e| TaskError::Params(e.to_string()))?;
         Ok(Self {
             controller,
             max_fix_age_s: params.max_fix_age_s,
+            descend_in_phase: params.descend_in_phase,
             vehicle: None,
+            phase: None,
             relative: None,
             output: None,
         })
@@ -68,8 +143,15 @@ impl GuidanceTask {
 }
 
 impl Task for GuidanceTask {
+    fn set_qos(&mut self, level: &QosLevel) -> Result<(), TaskError> {
+        self.controller
+            .set_control_period(level.period().as_secs_f64())
+            .map_err(|e| TaskError::Params(e.to_string()))
+    }
+
     fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
         self.vehicle = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
+        self.phase = Some(ctx.bus().subscriber(MISSION_PHASE)?);
         self.relative = Some(ctx.bus().subscriber(RELATIVE_STATE)?);
         self.output = Some(ctx.bus().publisher(LANDING_SETPOINT)?);
         Ok(())
@@ -98,12 +180,19 @@ impl Task for GuidanceTask {
             .and_then(|r| r.platform_velocity_ned_m_s)
             .map(|v| Vector2::new(v.x, v.y))
             .unwrap_or_else(Vector2::zeros);
+        let descent_allowed = self
+            .phase
+            .as_mut()
+            .and_then(|phase| phase.latest())
+            .is_none_or(|phase| *phase.value.name == *self.descend_in_phase);
         let step = self.controller.step(&LandingInput {
             time_s: now_s,
             fix,
             height_above_pad_m: state.height_above_pad_m,
             platform_velocity_ne_m_s: platform_velocity,
             touchdown_detected: state.landed,
+            uav_velocity_ne_m_s: state.velocity_ned_m_s.xy(),
+            descent_allowed,
         });
         match step {
             Ok(out) => {
@@ -133,5 +222,83 @@ impl Task for GuidanceTask {
                 Ok(())
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Knob;
+
+    fn task(params: &str) -> Result<GuidanceTask, TaskError> {
+        let table: toml::Table = toml::from_str(params).unwrap();
+        GuidanceTask::new(crate::task::parse_params(&table)?)
+    }
+
+    fn mpc_config(task: &GuidanceTask) -> MpcConfig {
+        match task.controller.config().controller {
+            HorizontalController::Mpc(config) => config,
+            other => panic!("not the MPC: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn the_controller_is_chosen_by_params() {
+        let pid = task("").unwrap();
+        assert_eq!(
+            pid.controller.config().controller,
+            HorizontalController::Pid
+        );
+        let mpc =
+            task("controller = \"mpc\"\nmpc_horizon_s = 1.5\nmpc_max_speed_m_s = 4.0").unwrap();
+        let config = mpc_config(&mpc);
+        assert_eq!(config.max_speed_m_s, 4.0);
+        assert_eq!(config.horizon_steps as f64 * config.dt_s, 1.5);
+        let Err(TaskError::Params(why)) = task("controller = \"lqr\"") else {
+            panic!("an unknown controller must be refused");
+        };
+        assert!(why.contains("lqr") && why.contains("mpc"), "{why}");
+        assert!(matches!(
+            task("controller = \"mpc\"\nmpc_horizon_s = -1.0"),
+            Err(TaskError::Params(_))
+        ));
+        assert!(matches!(
+            task("controller = \"mpc\"\nmpc_max_accel_m_s2 = 0.0"),
+            Err(TaskError::Params(_))
+        ));
+    }
+
+    /// The MPC's model step follows the QoS period; its horizon keeps its length in seconds.
+    #[test]
+    fn the_mpc_is_retimed_to_each_qos_period() {
+        let mut mpc = task("controller = \"mpc\"").unwrap();
+        for (period_ms, steps) in [(100.0, 10), (20.0, 50), (50.0, 20)] {
+            let level = QosLevel {
+                index: 0,
+                knob: Knob::PeriodMs,
+                value: period_ms,
+                period_ms,
+            };
+            mpc.set_qos(&level).unwrap();
+            let config = mpc_config(&mpc);
+            assert!(
+                (config.dt_s - period_ms / 1000.0).abs() < 1e-12,
+                "{config:?}"
+            );
+            assert_eq!(config.horizon_steps, steps);
+        }
+        // The PID needs no re-timing and accepts any level.
+        let mut pid = task("").unwrap();
+        let level = QosLevel {
+            index: 2,
+            knob: Knob::PeriodMs,
+            value: 20.0,
+            period_ms: 20.0,
+        };
+        pid.set_qos(&level).unwrap();
+        assert_eq!(
+            pid.controller.config().controller,
+            HorizontalController::Pid
+        );
     }
 }

@@ -52,8 +52,8 @@ mod tests {
     use crate::scheduler::SchedulerBuilder;
     use crate::task::{Task, TaskContext, TaskError};
     use crate::topics::{
-        CameraFrame, LandingSetpoint, RelativeState, VehicleState, CAMERA_FRAME, LANDING_SETPOINT,
-        RELATIVE_STATE, VEHICLE_STATE,
+        CameraFrame, LandingSetpoint, MissionPhase, RelativeState, VehicleState, CAMERA_FRAME,
+        LANDING_SETPOINT, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
     };
     use algorithms::control::landing::LandingMode;
     use algorithms::estimation::projection::Attitude;
@@ -179,5 +179,100 @@ mod tests {
             assert_eq!(stats.failures, 0, "{name}: {stats:?}");
             assert!(stats.activations > 10, "{name}: {stats:?}");
         }
+    }
+
+    /// The chain with the landing task's IH at the hovering height, so the descent is only a
+    /// matter of the phase: the tracking phase follows, the landing phase descends; with
+    /// either controller.
+    fn descent_waits_for_the_landing_phase(controller: &str) {
+        let mut registry = builtin_registry().unwrap();
+        registry
+            .register("hovering_vehicle", |_, _| {
+                Ok(Box::new(HoveringVehicle::new()))
+            })
+            .unwrap();
+        let reference = include_str!("../../../qos.toml");
+        let config = load_str(reference, None, &PluginCatalog::builtin()).unwrap();
+        let mut vehicle = config.task("detection").unwrap().clone();
+        vehicle.name = "vehicle".into();
+        vehicle.plugin = "hovering_vehicle".into();
+        vehicle.params = toml::Table::new();
+        let mut landing = config.task("landing").unwrap().clone();
+        landing
+            .params
+            .insert("initial_altitude_m".into(), HEIGHT_M.into());
+        landing
+            .params
+            .insert("controller".into(), controller.to_string().into());
+        let mut builder = SchedulerBuilder::new(&registry);
+        builder.task(&vehicle);
+        builder.task(config.task("detection").unwrap());
+        builder.task(config.task("tracking").unwrap());
+        builder.task(&landing);
+        let mut scheduler = builder.build_virtual().unwrap();
+        let phase = scheduler
+            .bus()
+            .publisher::<MissionPhase>(MISSION_PHASE)
+            .unwrap();
+        let mut setpoints = scheduler
+            .bus()
+            .subscriber::<LandingSetpoint>(LANDING_SETPOINT)
+            .unwrap();
+        scheduler.start().unwrap();
+        phase.publish(
+            scheduler.now(),
+            MissionPhase {
+                index: 1,
+                name: "tracking".into(),
+            },
+        );
+        scheduler.run_for(Duration::from_secs(3)).unwrap();
+        let following = setpoints.latest().expect("a setpoint").value;
+        assert_eq!(
+            following.mode,
+            LandingMode::Follow,
+            "{controller}: {following:?}"
+        );
+        phase.publish(
+            scheduler.now(),
+            MissionPhase {
+                index: 2,
+                name: "landing".into(),
+            },
+        );
+        scheduler.run_for(Duration::from_secs(2)).unwrap();
+        let descending = setpoints.latest().expect("a setpoint").value;
+        assert_eq!(
+            descending.mode,
+            LandingMode::Descend,
+            "{controller}: {descending:?}"
+        );
+        assert!(
+            descending.velocity_setpoint_ned_m_s.z > 0.0,
+            "{descending:?}"
+        );
+        // Hovering over a still pad 0.72 m away: the command points at the pad.
+        let towards_pad = Vector3::new(PAD_NORTH_M, PAD_EAST_M, 0.0).normalize();
+        let horizontal = Vector3::new(
+            descending.velocity_setpoint_ned_m_s.x,
+            descending.velocity_setpoint_ned_m_s.y,
+            0.0,
+        );
+        assert!(
+            horizontal.normalize().dot(&towards_pad) > 0.9,
+            "{controller}: {horizontal:?}"
+        );
+        let stats = scheduler.task_stats("landing").unwrap();
+        assert_eq!(stats.failures, 0, "{controller}: {stats:?}");
+    }
+
+    #[test]
+    fn pid_descends_only_in_the_landing_phase() {
+        descent_waits_for_the_landing_phase("pid");
+    }
+
+    #[test]
+    fn mpc_descends_only_in_the_landing_phase() {
+        descent_waits_for_the_landing_phase("mpc");
     }
 }
