@@ -1,0 +1,698 @@
+//! The mission sequencer: what the companion computer tells the autopilot, step by step, to fly
+//! the mission — arm, take off, enter offboard, fly out to the tractor (transit), follow it
+//! (tracking), land on it (landing) — and which phase is flying. Pure logic: the caller feeds it
+//! what the link reports and what the landing task publishes, and sends the commands it returns.
+//! The simulator and `qosrt run --mavlink` drive the same sequencer.
+//!
+//! Phases follow the config's `[[mission.phase]]` order. The first phase ends when the vehicle
+//! is over the tractor's meeting point at the follow height; a middle phase ends after its
+//! configured duration; the last one ends at touchdown. A "land now" from the governor skips
+//! straight to the last phase.
+//!
+//! Link loss: nothing can be sent, so the sequencer only records it; PX4 leaves offboard by
+//! itself when setpoints stop (COM_OF_LOSS_T) and holds. When the link returns the sequencer
+//! streams setpoints again and re-enters offboard, and the phase goes on where it was.
+
+use crate::topics::LandingSetpoint;
+use nalgebra::Vector3;
+
+/// The autopilot's flight mode as far as the sequencer cares.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AutopilotMode {
+    Offboard,
+    Takeoff,
+    Hold,
+    Land,
+    Other,
+}
+
+/// What the link says about the autopilot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AutopilotView {
+    pub armed: bool,
+    pub mode: AutopilotMode,
+    /// On the ground (EXTENDED_SYS_STATE).
+    pub landed: bool,
+    /// Local NED position from the autopilot.
+    pub position_ned_m: Vector3<f64>,
+}
+
+/// What the sequencer wants sent.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MissionCommand {
+    Arm,
+    Takeoff {
+        altitude_m: f64,
+    },
+    /// Switch to offboard (only after setpoints have been streaming).
+    StartOffboard,
+    Velocity {
+        velocity_ned_m_s: Vector3<f64>,
+    },
+    Land,
+}
+
+/// Something worth reporting, with the time it happened.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MissionEvent {
+    Armed,
+    TookOff,
+    OffboardEngaged,
+    PhaseStarted {
+        phase: usize,
+        name: String,
+    },
+    LinkLost,
+    LinkRestored,
+    LandNow {
+        reason: String,
+    },
+    Touchdown,
+    /// The mission cannot go on (e.g. the autopilot refused to arm for too long).
+    Aborted {
+        reason: String,
+    },
+}
+
+/// The sequencer's configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MissionPlan {
+    /// Phase names in flight order.
+    pub phase_names: Vec<String>,
+    /// How long each middle phase flies; the first and last end on events (ignored there).
+    pub phase_durations_s: Vec<f64>,
+    /// Height above the take-off point at which the vehicle flies out and follows.
+    pub cruise_altitude_m: f64,
+    /// Where the tractor waits (local NED, north and east; down is ignored).
+    pub meeting_point_ne_m: [f64; 2],
+    /// Speed of the flight out.
+    pub transit_speed_m_s: f64,
+    /// Over the meeting point within this horizontal distance counts as arrived.
+    pub arrival_radius_m: f64,
+    /// Gain of the flight-out position loop (per second).
+    pub position_gain_per_s: f64,
+    /// Give up when arming or taking off is refused for this long.
+    pub command_timeout_s: f64,
+    /// Re-send a command the autopilot has not acted on after this long.
+    pub command_retry_s: f64,
+    /// Setpoints must stream this long before offboard is requested (PX4 needs > 2 Hz).
+    pub offboard_preamble_s: f64,
+}
+
+impl MissionPlan {
+    /// A plan with our defaults for the given phases.
+    pub fn new(phase_names: Vec<String>, phase_durations_s: Vec<f64>) -> Self {
+        Self {
+            phase_names,
+            phase_durations_s,
+            cruise_altitude_m: 8.5,
+            meeting_point_ne_m: [0.0, 0.0],
+            transit_speed_m_s: 3.0,
+            arrival_radius_m: 0.5,
+            position_gain_per_s: 0.6,
+            command_timeout_s: 30.0,
+            command_retry_s: 1.0,
+            offboard_preamble_s: 0.5,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Stage {
+    WaitingForAutopilot,
+    Arming { since_s: f64, sent_s: f64 },
+    TakingOff { since_s: f64, sent_s: f64 },
+    EnteringOffboard { since_s: f64, sent_s: Option<f64> },
+    Flying,
+    Landing { sent_s: f64 },
+    Done,
+}
+
+/// Where the mission is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MissionStatus {
+    /// The phase flying, once the first has begun.
+    pub phase: Option<usize>,
+    /// When that phase began.
+    pub phase_started_s: f64,
+    pub link_up: bool,
+    pub finished: bool,
+}
+
+/// The sequencer.
+#[derive(Debug, Clone)]
+pub struct MissionSequencer {
+    plan: MissionPlan,
+    stage: Stage,
+    phase: Option<usize>,
+    phase_started_s: f64,
+    link_up: bool,
+    land_now: bool,
+    takeoff_altitude_down_m: Option<f64>,
+    /// The first connection is not a restoration.
+    ever_connected: bool,
+}
+
+/// One step's input.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SequencerInput {
+    pub time_s: f64,
+    pub link_up: bool,
+    /// `None` until the autopilot has been heard.
+    pub autopilot: Option<AutopilotView>,
+    /// The landing task's latest setpoint (fresh enough to fly).
+    pub landing: Option<LandingSetpoint>,
+    /// The governor asked to land now.
+    pub land_now: Option<&'static str>,
+}
+
+impl MissionSequencer {
+    pub fn new(plan: MissionPlan) -> Self {
+        Self {
+            plan,
+            stage: Stage::WaitingForAutopilot,
+            phase: None,
+            phase_started_s: 0.0,
+            link_up: false,
+            land_now: false,
+            takeoff_altitude_down_m: None,
+            ever_connected: false,
+        }
+    }
+
+    pub fn status(&self) -> MissionStatus {
+        MissionStatus {
+            phase: self.phase,
+            phase_started_s: self.phase_started_s,
+            link_up: self.link_up,
+            finished: self.stage == Stage::Done,
+        }
+    }
+
+    pub fn plan(&self) -> &MissionPlan {
+        &self.plan
+    }
+
+    /// One step: the commands to send now, and what happened.
+    pub fn step(&mut self, input: &SequencerInput) -> (Vec<MissionCommand>, Vec<MissionEvent>) {
+        let mut commands = Vec::new();
+        let mut events = Vec::new();
+        let now_s = input.time_s;
+        if input.link_up != self.link_up {
+            if input.link_up && self.ever_connected {
+                events.push(MissionEvent::LinkRestored);
+            } else if !input.link_up {
+                events.push(MissionEvent::LinkLost);
+            }
+            self.ever_connected |= input.link_up;
+            self.link_up = input.link_up;
+            if input.link_up && self.stage == Stage::Flying {
+                // The autopilot has left offboard meanwhile: stream, then re-enter.
+                self.stage = Stage::EnteringOffboard {
+                    since_s: now_s,
+                    sent_s: None,
+                };
+            }
+        }
+        if let Some(reason) = input.land_now {
+            if !self.land_now {
+                self.land_now = true;
+                events.push(MissionEvent::LandNow {
+                    reason: reason.to_string(),
+                });
+            }
+        }
+        let (true, Some(autopilot)) = (input.link_up, input.autopilot) else {
+            return (commands, events);
+        };
+        let last_phase = self.plan.phase_names.len().saturating_sub(1);
+        match self.stage {
+            Stage::WaitingForAutopilot => {
+                if autopilot.armed {
+                    // Already armed (a restarted companion): go straight to the take-off.
+                    self.stage = Stage::TakingOff {
+                        since_s: now_s,
+                        sent_s: f64::NEG_INFINITY,
+                    };
+                } else {
+                    commands.push(MissionCommand::Arm);
+                    self.stage = Stage::Arming {
+                        since_s: now_s,
+                        sent_s: now_s,
+                    };
+                }
+            }
+            Stage::Arming { since_s, sent_s } => {
+                if autopilot.armed {
+                    events.push(MissionEvent::Armed);
+                    self.takeoff_altitude_down_m = Some(autopilot.position_ned_m.z);
+                    commands.push(MissionCommand::Takeoff {
+                        altitude_m: self.plan.cruise_altitude_m,
+                    });
+                    self.stage = Stage::TakingOff {
+                        since_s: now_s,
+                        sent_s: now_s,
+                    };
+                } else if now_s - since_s > self.plan.command_timeout_s {
+                    events.push(MissionEvent::Aborted {
+                        reason: format!(
+                            "the autopilot did not arm within {} s",
+                            self.plan.command_timeout_s
+                        ),
+                    });
+                    self.stage = Stage::Done;
+                } else if now_s - sent_s >= self.plan.command_retry_s {
+                    commands.push(MissionCommand::Arm);
+                    self.stage = Stage::Arming {
+                        since_s,
+                        sent_s: now_s,
+                    };
+                }
+            }
+            Stage::TakingOff { since_s, sent_s } => {
+                let start_down_m = *self
+                    .takeoff_altitude_down_m
+                    .get_or_insert(autopilot.position_ned_m.z);
+                let climbed_m = start_down_m - autopilot.position_ned_m.z;
+                if climbed_m >= self.plan.cruise_altitude_m - 0.3 {
+                    events.push(MissionEvent::TookOff);
+                    self.start_phase(0, now_s, &mut events);
+                    self.stage = Stage::EnteringOffboard {
+                        since_s: now_s,
+                        sent_s: None,
+                    };
+                } else if !autopilot.armed && now_s - since_s > 2.0 * self.plan.command_retry_s {
+                    // Disarmed on the ground again (a refused take-off times out the arming).
+                    self.stage = Stage::WaitingForAutopilot;
+                } else if now_s - since_s > self.plan.command_timeout_s {
+                    events.push(MissionEvent::Aborted {
+                        reason: format!(
+                            "the take-off did not reach {} m within {} s",
+                            self.plan.cruise_altitude_m, self.plan.command_timeout_s
+                        ),
+                    });
+                    commands.push(MissionCommand::Land);
+                    self.stage = Stage::Done;
+                } else if autopilot.mode != AutopilotMode::Takeoff
+                    && now_s - sent_s >= self.plan.command_retry_s
+                {
+                    commands.push(MissionCommand::Takeoff {
+                        altitude_m: self.plan.cruise_altitude_m,
+                    });
+                    self.stage = Stage::TakingOff {
+                        since_s,
+                        sent_s: now_s,
+                    };
+                }
+            }
+            Stage::EnteringOffboard { since_s, sent_s } => {
+                commands.push(self.flying_setpoint(&autopilot, input, now_s, &mut events));
+                if autopilot.mode == AutopilotMode::Offboard {
+                    events.push(MissionEvent::OffboardEngaged);
+                    self.stage = Stage::Flying;
+                } else if now_s - since_s >= self.plan.offboard_preamble_s
+                    && sent_s.is_none_or(|sent| now_s - sent >= self.plan.command_retry_s)
+                {
+                    commands.push(MissionCommand::StartOffboard);
+                    self.stage = Stage::EnteringOffboard {
+                        since_s,
+                        sent_s: Some(now_s),
+                    };
+                }
+            }
+            Stage::Flying => {
+                let touchdown = autopilot.landed
+                    || input.landing.is_some_and(|setpoint| {
+                        setpoint.mode == algorithms::control::landing::LandingMode::Landed
+                    });
+                if self.phase == Some(last_phase) && touchdown {
+                    events.push(MissionEvent::Touchdown);
+                    commands.push(MissionCommand::Land);
+                    self.stage = Stage::Landing { sent_s: now_s };
+                } else {
+                    commands.push(self.flying_setpoint(&autopilot, input, now_s, &mut events));
+                }
+            }
+            Stage::Landing { sent_s } => {
+                if !autopilot.armed {
+                    self.stage = Stage::Done;
+                } else if autopilot.mode != AutopilotMode::Land
+                    && now_s - sent_s >= self.plan.command_retry_s
+                {
+                    commands.push(MissionCommand::Land);
+                    self.stage = Stage::Landing { sent_s: now_s };
+                }
+            }
+            Stage::Done => {}
+        }
+        (commands, events)
+    }
+
+    fn start_phase(&mut self, phase: usize, now_s: f64, events: &mut Vec<MissionEvent>) {
+        self.phase = Some(phase);
+        self.phase_started_s = now_s;
+        events.push(MissionEvent::PhaseStarted {
+            phase,
+            name: self
+                .plan
+                .phase_names
+                .get(phase)
+                .cloned()
+                .unwrap_or_default(),
+        });
+    }
+
+    /// Advances the phase when its end condition holds, then gives the velocity to fly.
+    fn flying_setpoint(
+        &mut self,
+        autopilot: &AutopilotView,
+        input: &SequencerInput,
+        now_s: f64,
+        events: &mut Vec<MissionEvent>,
+    ) -> MissionCommand {
+        let last_phase = self.plan.phase_names.len().saturating_sub(1);
+        let phase = *self.phase.get_or_insert(0);
+        if self.land_now && phase < last_phase {
+            self.start_phase(last_phase, now_s, events);
+        } else if phase == 0 && last_phase > 0 {
+            if self.transit_offset(autopilot).norm() <= self.plan.arrival_radius_m {
+                self.start_phase(1, now_s, events);
+            }
+        } else if phase > 0 && phase < last_phase {
+            let duration_s = self
+                .plan
+                .phase_durations_s
+                .get(phase)
+                .copied()
+                .unwrap_or(0.0);
+            if now_s - self.phase_started_s >= duration_s {
+                self.start_phase(phase + 1, now_s, events);
+            }
+        }
+        let velocity_ned_m_s = if self.phase == Some(0) && last_phase > 0 {
+            self.transit_velocity(autopilot)
+        } else {
+            // The landing task steers; until it has spoken, hold.
+            input
+                .landing
+                .map_or_else(Vector3::zeros, |s| s.velocity_setpoint_ned_m_s)
+        };
+        MissionCommand::Velocity { velocity_ned_m_s }
+    }
+
+    /// Meeting point minus vehicle, NED, with the height error in down.
+    fn transit_offset(&self, autopilot: &AutopilotView) -> Vector3<f64> {
+        let start_down_m = self.takeoff_altitude_down_m.unwrap_or(0.0);
+        let target = Vector3::new(
+            self.plan.meeting_point_ne_m[0],
+            self.plan.meeting_point_ne_m[1],
+            start_down_m - self.plan.cruise_altitude_m,
+        );
+        target - autopilot.position_ned_m
+    }
+
+    fn transit_velocity(&self, autopilot: &AutopilotView) -> Vector3<f64> {
+        let velocity = self.transit_offset(autopilot) * self.plan.position_gain_per_s;
+        let speed = velocity.norm();
+        if speed > self.plan.transit_speed_m_s {
+            velocity * (self.plan.transit_speed_m_s / speed)
+        } else {
+            velocity
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use algorithms::control::landing::LandingMode;
+
+    fn plan() -> MissionPlan {
+        let mut plan = MissionPlan::new(
+            vec!["transit".into(), "tracking".into(), "landing".into()],
+            vec![0.0, 30.0, 0.0],
+        );
+        plan.meeting_point_ne_m = [20.0, 0.0];
+        plan
+    }
+
+    /// A minimal autopilot that obeys at once: arming, take-off (climbs 2 m/s), offboard and
+    /// velocity setpoints, land. Enough to walk the sequencer through a mission.
+    struct Obedient {
+        view: AutopilotView,
+        velocity: Vector3<f64>,
+        streamed_s: f64,
+    }
+
+    impl Obedient {
+        fn new() -> Self {
+            Self {
+                view: AutopilotView {
+                    armed: false,
+                    mode: AutopilotMode::Hold,
+                    landed: true,
+                    position_ned_m: Vector3::zeros(),
+                },
+                velocity: Vector3::zeros(),
+                streamed_s: 0.0,
+            }
+        }
+
+        fn apply(&mut self, commands: &[MissionCommand], dt_s: f64) {
+            for command in commands {
+                match *command {
+                    MissionCommand::Arm => self.view.armed = true,
+                    MissionCommand::Takeoff { .. } if self.view.armed => {
+                        self.view.mode = AutopilotMode::Takeoff;
+                        self.view.landed = false;
+                    }
+                    MissionCommand::Takeoff { .. } => {}
+                    MissionCommand::StartOffboard => {
+                        assert!(self.streamed_s > 0.0, "offboard before any setpoint");
+                        self.view.mode = AutopilotMode::Offboard;
+                    }
+                    MissionCommand::Velocity { velocity_ned_m_s } => {
+                        self.velocity = velocity_ned_m_s;
+                        self.streamed_s += dt_s;
+                    }
+                    MissionCommand::Land => self.view.mode = AutopilotMode::Land,
+                }
+            }
+            match self.view.mode {
+                AutopilotMode::Takeoff if self.view.position_ned_m.z > -8.5 => {
+                    self.view.position_ned_m.z -= 2.0 * dt_s;
+                }
+                AutopilotMode::Offboard => self.view.position_ned_m += self.velocity * dt_s,
+                AutopilotMode::Land => {
+                    self.view.armed = false;
+                    self.view.landed = true;
+                }
+                _ => {}
+            }
+        }
+    }
+
+    fn landing(mode: LandingMode, down_m_s: f64) -> LandingSetpoint {
+        LandingSetpoint {
+            mode,
+            velocity_setpoint_ned_m_s: Vector3::new(1.5, 0.0, down_m_s),
+            land_command: false,
+        }
+    }
+
+    #[test]
+    fn walks_through_the_phases_to_touchdown() {
+        let mut sequencer = MissionSequencer::new(plan());
+        let mut autopilot = Obedient::new();
+        let dt_s = 0.05;
+        let mut all_events = Vec::new();
+        let mut phase_starts = Vec::new();
+        for k in 0..4000 {
+            let time_s = k as f64 * dt_s;
+            let phase = sequencer.status().phase;
+            // The landing task follows in tracking and touches down 5 s into landing.
+            let setpoint = match phase {
+                Some(2) if time_s - sequencer.status().phase_started_s > 5.0 => {
+                    Some(landing(LandingMode::Landed, 0.0))
+                }
+                Some(1) | Some(2) => Some(landing(LandingMode::Follow, 0.0)),
+                _ => None,
+            };
+            let (commands, events) = sequencer.step(&SequencerInput {
+                time_s,
+                link_up: true,
+                autopilot: Some(autopilot.view),
+                landing: setpoint,
+                land_now: None,
+            });
+            for event in &events {
+                if let MissionEvent::PhaseStarted { phase, .. } = event {
+                    phase_starts.push((*phase, time_s));
+                }
+            }
+            all_events.extend(events);
+            autopilot.apply(&commands, dt_s);
+            if sequencer.status().finished {
+                break;
+            }
+        }
+        assert!(sequencer.status().finished, "{all_events:?}");
+        assert_eq!(
+            phase_starts.iter().map(|p| p.0).collect::<Vec<_>>(),
+            vec![0, 1, 2]
+        );
+        // Transit ends over the meeting point: 20 m north at the cruise height.
+        let tracking_s = phase_starts[2].1 - phase_starts[1].1;
+        assert!((tracking_s - 30.0).abs() <= dt_s + 1e-9, "{tracking_s}");
+        assert!(all_events.contains(&MissionEvent::Touchdown));
+        let order: Vec<_> = all_events
+            .iter()
+            .filter(|e| {
+                matches!(
+                    e,
+                    MissionEvent::Armed | MissionEvent::TookOff | MissionEvent::OffboardEngaged
+                )
+            })
+            .collect();
+        assert_eq!(
+            order,
+            vec![
+                &MissionEvent::Armed,
+                &MissionEvent::TookOff,
+                &MissionEvent::OffboardEngaged
+            ]
+        );
+    }
+
+    #[test]
+    fn transit_flies_to_the_meeting_point_and_then_tracking_begins() {
+        let mut sequencer = MissionSequencer::new(plan());
+        let mut autopilot = Obedient::new();
+        let dt_s = 0.05;
+        for k in 0..2000 {
+            let time_s = k as f64 * dt_s;
+            let (commands, _) = sequencer.step(&SequencerInput {
+                time_s,
+                link_up: true,
+                autopilot: Some(autopilot.view),
+                landing: None,
+                land_now: None,
+            });
+            if let Some(MissionCommand::Velocity { velocity_ned_m_s }) = commands
+                .iter()
+                .find(|c| matches!(c, MissionCommand::Velocity { .. }))
+            {
+                assert!(velocity_ned_m_s.norm() <= 3.0 + 1e-9);
+            }
+            autopilot.apply(&commands, dt_s);
+            if sequencer.status().phase == Some(1) {
+                let p = autopilot.view.position_ned_m;
+                assert!((p.x - 20.0).hypot(p.y) <= 0.5 + 0.2, "{p:?}");
+                assert!((p.z + 8.5).abs() < 0.5, "{p:?}");
+                return;
+            }
+        }
+        panic!("never reached the meeting point");
+    }
+
+    #[test]
+    fn link_loss_stops_commands_and_recovery_reenters_offboard() {
+        let mut sequencer = MissionSequencer::new(plan());
+        let mut autopilot = Obedient::new();
+        let dt_s = 0.05;
+        let mut lost_events = 0;
+        let mut restored = false;
+        let mut reentered = false;
+        for k in 0..3000 {
+            let time_s = k as f64 * dt_s;
+            let in_tracking = sequencer.status().phase == Some(1);
+            let link_up = !(in_tracking && (30.0..33.0).contains(&time_s));
+            let (commands, events) = sequencer.step(&SequencerInput {
+                time_s,
+                link_up,
+                autopilot: Some(autopilot.view),
+                landing: Some(landing(LandingMode::Follow, 0.0)),
+                land_now: None,
+            });
+            if !link_up {
+                assert!(commands.is_empty(), "sent {commands:?} without a link");
+                // The autopilot fails safe on its own.
+                autopilot.view.mode = AutopilotMode::Hold;
+            }
+            for event in &events {
+                match event {
+                    MissionEvent::LinkLost => lost_events += 1,
+                    MissionEvent::LinkRestored => restored = true,
+                    MissionEvent::OffboardEngaged if restored => reentered = true,
+                    _ => {}
+                }
+            }
+            autopilot.apply(&commands, dt_s);
+            if reentered {
+                break;
+            }
+        }
+        assert_eq!(lost_events, 1);
+        assert!(
+            reentered,
+            "offboard was not re-entered after the link came back"
+        );
+        assert_eq!(sequencer.status().phase, Some(1), "the phase goes on");
+    }
+
+    #[test]
+    fn land_now_skips_to_the_landing_phase_and_refusals_abort() {
+        let mut sequencer = MissionSequencer::new(plan());
+        let mut autopilot = Obedient::new();
+        let dt_s = 0.05;
+        let mut time_s = 0.0;
+        while sequencer.status().phase != Some(1) {
+            let (commands, _) = sequencer.step(&SequencerInput {
+                time_s,
+                link_up: true,
+                autopilot: Some(autopilot.view),
+                landing: None,
+                land_now: None,
+            });
+            autopilot.apply(&commands, dt_s);
+            time_s += dt_s;
+            assert!(time_s < 100.0);
+        }
+        let (_, events) = sequencer.step(&SequencerInput {
+            time_s,
+            link_up: true,
+            autopilot: Some(autopilot.view),
+            landing: Some(landing(LandingMode::Follow, 0.0)),
+            land_now: Some("battery"),
+        });
+        assert!(events.contains(&MissionEvent::LandNow {
+            reason: "battery".into()
+        }));
+        assert_eq!(sequencer.status().phase, Some(2));
+
+        // An autopilot that never arms: the sequencer retries, then gives up.
+        let mut stubborn = MissionSequencer::new(plan());
+        let view = Obedient::new().view;
+        let mut arms = 0;
+        let mut aborted = false;
+        for k in 0..1000 {
+            let (commands, events) = stubborn.step(&SequencerInput {
+                time_s: k as f64 * dt_s,
+                link_up: true,
+                autopilot: Some(view),
+                landing: None,
+                land_now: None,
+            });
+            arms += commands
+                .iter()
+                .filter(|c| **c == MissionCommand::Arm)
+                .count();
+            aborted |= events
+                .iter()
+                .any(|e| matches!(e, MissionEvent::Aborted { .. }));
+        }
+        assert!(aborted);
+        assert!((25..=35).contains(&arms), "{arms} arm commands in 30 s");
+        assert!(stubborn.status().finished);
+    }
+}
