@@ -269,6 +269,13 @@ impl VirtualScheduler {
         self.clock.now()
     }
 
+    /// When `task` is next activated, if it still is (a simulator renders a camera frame only
+    /// when a consumer will look at it).
+    pub fn next_activation(&self, task: &str) -> Option<Timestamp> {
+        let runner = &self.runners[self.index_of(task).ok()?];
+        (self.started && runner.is_scheduled()).then(|| runner.next_due())
+    }
+
     /// A handle on the scheduler's clock, for reading (the scheduler advances it; advancing it
     /// from elsewhere makes the next `run_until` fail with a clock error).
     pub fn clock(&self) -> VirtualClock {
