@@ -2,6 +2,7 @@
 //! plugins, resources, clock, energy governor and MAVLink link.
 
 pub mod bus;
+pub mod camera_source;
 pub mod catalog;
 pub mod clock;
 pub mod config;
@@ -9,6 +10,7 @@ pub mod diagnostic;
 pub mod dry_run;
 pub mod energy;
 pub mod governor;
+pub mod mission;
 pub mod plugins;
 pub mod registry;
 pub mod scheduler;

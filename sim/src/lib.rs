@@ -2,3 +2,7 @@
 //! autopilot, speaking to the runtime only through MAVLink and camera frames.
 
 pub mod flight;
+pub mod scene;
+pub mod camera;
+pub mod power;
+pub mod outcome;

@@ -356,6 +356,10 @@ pub fn true_pixel(
 
 /// A patch prepared for the inner loop: u = (p − c)·eu, v = (p − c)·ev in patch units.
 struct PreparedPatch<'a> {
+    /// Bounds (x min, x max, y min, y max) of the patch in the camera's normalised (undistorted)
+    /// coordinates, so rays that cannot meet it skip it; infinite when the patch reaches behind
+    /// the camera (its image is then not the hull of its corners).
+    bounds: [f64; 4],
     centre: [f64; 2],
     eu: [f64; 2],
     ev: [f64; 2],
@@ -399,6 +403,7 @@ pub fn render(
         let (eu, ev) = p.axes();
         let (su, sv) = (2.0 / p.width_m, 2.0 / p.height_m);
         prepared.push(PreparedPatch {
+            bounds: normalized_bounds(pose, p),
             centre: [p.north_m, p.east_m],
             eu: [eu[0] * su, eu[1] * su],
             ev: [ev[0] * sv, ev[1] * sv],
@@ -419,19 +424,28 @@ pub fn render(
         .collect();
 
     // A sample sees a patch's texture or the sky (`Ok`), or the ground at world (north, east) (`Err`).
-    let shade = |ray: Vector3<f64>| -> Result<f32, (f64, f64)> {
+    let shade = |candidates: &[&PreparedPatch<'_>],
+                 x: f64,
+                 y: f64,
+                 ray: Vector3<f64>|
+     -> Result<f32, (f64, f64)> {
         if ray.z.abs() <= 1e-12 {
             return Ok(scene.sky);
         }
-        let ground_t = (scene.ground_down_m - origin.z) / ray.z;
+        let inverse_z = 1.0 / ray.z;
+        let ground_t = (scene.ground_down_m - origin.z) * inverse_z;
         let mut best_t = if ground_t > 0.0 {
             ground_t
         } else {
             f64::INFINITY
         };
         let mut value = None;
-        for p in &prepared {
-            let t = (p.down_m - origin.z) / ray.z;
+        for p in candidates {
+            let [x0, x1, y0, y1] = p.bounds;
+            if x < x0 || x > x1 || y < y0 || y > y1 {
+                continue;
+            }
+            let t = (p.down_m - origin.z) * inverse_z;
             // A patch on the ground plane itself must beat the ground: compare with a tolerance.
             if !(t > 0.0 && t <= best_t * (1.0 + 1e-12)) || (value.is_some() && t >= best_t) {
                 continue;
@@ -455,7 +469,20 @@ pub fn render(
     };
 
     let mut pixels = vec![0f32; width * height];
+    let mut candidates: Vec<&PreparedPatch<'_>> = Vec::with_capacity(prepared.len());
     for row in 0..height {
+        // Without distortion a row's samples share their normalised y: only the patches that
+        // span it need testing in this row.
+        candidates.clear();
+        let (row_y0, row_y1) = (
+            (row as f64 + offsets[0] - camera.cy_px) / camera.fy_px,
+            (row as f64 + offsets[ss - 1] - camera.cy_px) / camera.fy_px,
+        );
+        candidates.extend(
+            prepared
+                .iter()
+                .filter(|p| !undistorted || (p.bounds[2] <= row_y1 && p.bounds[3] >= row_y0)),
+        );
         for (col, out) in pixels[row * width..(row + 1) * width]
             .iter_mut()
             .enumerate()
@@ -482,7 +509,7 @@ pub fn render(
                         r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)],
                         r[(2, 0)] * x + r[(2, 1)] * y + r[(2, 2)],
                     );
-                    match shade(ray) {
+                    match shade(&candidates, x, y, ray) {
                         Ok(value) => sum += value.clamp(0.0, 1.0),
                         Err((n, e)) => {
                             ground_n += n;
@@ -501,6 +528,44 @@ pub fn render(
         }
     }
     finish(pixels, width, height, &options.effects)
+}
+
+/// The normalised-coordinate bounds of a patch seen from `pose` (see [`PreparedPatch::bounds`]),
+/// widened by a hair so rounding never drops a ray that meets the patch's edge.
+fn normalized_bounds(pose: &CameraPose, patch: &Patch) -> [f64; 4] {
+    let everywhere = [
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+    ];
+    let mut bounds = [
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for (u, v) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+        let corner = pose.world_to_camera(&patch.point_world(u, v));
+        // A corner at or behind the camera: the patch's image is unbounded.
+        if corner.z.is_nan() || corner.z <= 1e-6 {
+            return everywhere;
+        }
+        let (x, y) = (corner.x / corner.z, corner.y / corner.z);
+        bounds = [
+            bounds[0].min(x),
+            bounds[1].max(x),
+            bounds[2].min(y),
+            bounds[3].max(y),
+        ];
+    }
+    let margin = 1e-9 * (1.0 + bounds.iter().fold(0f64, |m, b| m.max(b.abs())));
+    [
+        bounds[0] - margin,
+        bounds[1] + margin,
+        bounds[2] - margin,
+        bounds[3] + margin,
+    ]
 }
 
 /// Applies `effects` to an existing image.

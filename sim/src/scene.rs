@@ -1,0 +1,869 @@
+//! The field the simulated camera looks at: a procedural agricultural field, the landing pad on
+//! the tractor's roof, and hazards (people, animals, vehicles) scattered over the field.
+//!
+//! Everything is built from the renderer's opaque rectangular patches
+//! ([`algorithms::vision::render::Patch`]). A hazard's shape (a round person, an elliptical animal)
+//! is drawn inside its rectangle; outside the shape the hazard's texture samples the field's own
+//! texture at the same world point, so the rectangle itself is invisible. That keeps the renderer
+//! unchanged and exact: the hazard lies on the ground plane, where the field is.
+//!
+//! Conventions: world NED, metres, the ground at down = 0. A hazard's yaw is its heading (its
+//! long axis) from north towards east, as PX4's yaw.
+
+use std::f64::consts::PI;
+use std::fmt;
+use std::str::FromStr;
+use std::sync::{Arc, OnceLock};
+
+use algorithms::vision::camera::{CameraPose, PinholeCamera};
+use algorithms::vision::landing_marker::{LandingMarkerError, LandingMarkerLayout};
+use algorithms::vision::render::{Patch, Scene, SplitMix64, Texture};
+use nalgebra::Vector3;
+use thiserror::Error;
+
+/// A scene that cannot be built as asked.
+#[derive(Debug, Error)]
+pub enum SceneError {
+    #[error("unknown hazard class `{0}` (expected person, animal or vehicle)")]
+    UnknownHazardClass(String),
+    #[error("the scatter area must have finite extents with min < max, got north {north_m:?}, east {east_m:?}")]
+    Area { north_m: [f64; 2], east_m: [f64; 2] },
+    #[error("scatter setting `{name}` must be finite and not negative, got {value}")]
+    Setting { name: &'static str, value: f64 },
+    #[error("could not place {class} {placed_of} of {wanted} without overlapping another hazard or the keep-out path; use a larger area or fewer hazards")]
+    Crowded {
+        class: HazardClass,
+        placed_of: usize,
+        wanted: usize,
+    },
+    #[error("the pad pose must be finite with a height ≥ 0, got {0:?}")]
+    PadPose(PadPose),
+    #[error("the tractor body must have a positive, finite size, got {length_m} m × {width_m} m")]
+    TractorBody { length_m: f64, width_m: f64 },
+    #[error(transparent)]
+    Layout(#[from] LandingMarkerError),
+}
+
+/// What a hazard is; the hazard CNN is trained on these classes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum HazardClass {
+    Person,
+    Animal,
+    Vehicle,
+}
+
+impl HazardClass {
+    pub const ALL: [HazardClass; 3] = [Self::Person, Self::Animal, Self::Vehicle];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Person => "person",
+            Self::Animal => "animal",
+            Self::Vehicle => "vehicle",
+        }
+    }
+
+    /// (length along the heading, width across it), metres: the hazard's bounding rectangle.
+    pub fn size_m(self) -> (f64, f64) {
+        match self {
+            // Shoulders are wider than a body is deep, seen from above.
+            Self::Person => (0.4, 0.5),
+            Self::Animal => (1.2, 0.6),
+            Self::Vehicle => (4.0, 2.0),
+        }
+    }
+
+    /// Area of the visible shape (not its bounding rectangle), m².
+    pub fn shape_area_m2(self) -> f64 {
+        let (length_m, width_m) = self.size_m();
+        match self {
+            Self::Person | Self::Animal => PI * length_m * width_m / 4.0,
+            Self::Vehicle => length_m * width_m,
+        }
+    }
+
+    /// Radius of the circle around the bounding rectangle, metres.
+    pub fn bounding_radius_m(self) -> f64 {
+        let (length_m, width_m) = self.size_m();
+        0.5 * length_m.hypot(width_m)
+    }
+
+    /// Intensity in [0, 1] at patch coordinates (u across, v along, both in [−1, 1]; v = −1 is the
+    /// front), or `None` outside the shape. Each class has its own shape and shading, so a
+    /// classifier can tell them apart, and none looks like the white pad or the field's soil.
+    fn shade(self, u: f64, v: f64) -> Option<f32> {
+        match self {
+            Self::Person => {
+                // Dark clothing (shoulders), the lighter head in the middle.
+                let r2 = u * u + v * v;
+                (r2 <= 1.0).then_some(if r2 < 0.16 { 0.62 } else { 0.08 })
+            }
+            Self::Animal => {
+                // A mid-grey back, a little darker along the spine and at the head (front).
+                if u * u + v * v > 1.0 {
+                    return None;
+                }
+                let spine = (1.0 - (u.abs() / 0.25).min(1.0)) as f32;
+                let head = if v < -0.7 { 0.12 } else { 0.0 };
+                Some(0.5 - 0.1 * spine - head)
+            }
+            Self::Vehicle => {
+                // Bright paint with a dark windshield stripe across the front third.
+                let windshield = (-0.55..=-0.3).contains(&v) && u.abs() <= 0.85;
+                Some(if windshield { 0.12 } else { 0.92 })
+            }
+        }
+    }
+}
+
+impl fmt::Display for HazardClass {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for HazardClass {
+    type Err = SceneError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|c| c.name() == s)
+            .ok_or_else(|| SceneError::UnknownHazardClass(s.to_string()))
+    }
+}
+
+/// One hazard on the ground.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hazard {
+    pub class: HazardClass,
+    pub north_m: f64,
+    pub east_m: f64,
+    /// Heading of the hazard's long axis, from north towards east.
+    pub yaw_rad: f64,
+    /// Unique within its field.
+    pub id: u32,
+}
+
+impl Hazard {
+    /// The hazard as a ground patch; `field` is the background texture seen outside its shape.
+    pub fn patch(&self, field: &Texture) -> Patch {
+        let (length_m, width_m) = self.class.size_m();
+        // A patch's top faces its yaw, u to its right: width across, length along.
+        let patch = Patch::new(
+            self.north_m,
+            self.east_m,
+            self.yaw_rad,
+            width_m,
+            length_m,
+            Texture::uniform(0.0),
+        );
+        let centre = patch.point_world(0.0, 0.0);
+        let du = patch.point_world(1.0, 0.0) - centre;
+        let dv = patch.point_world(0.0, 1.0) - centre;
+        let (class, field) = (self.class, field.clone());
+        let texture = Texture::from_fn(move |u, v| match class.shade(u, v) {
+            Some(intensity) => intensity,
+            None => field.sample(
+                centre.x + u * du.x + v * dv.x,
+                centre.y + u * du.y + v * dv.y,
+            ),
+        });
+        Patch { texture, ..patch }
+    }
+}
+
+/// Where and how many hazards to scatter.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScatterConfig {
+    /// [min, max] north, metres.
+    pub north_m: [f64; 2],
+    /// [min, max] east, metres.
+    pub east_m: [f64; 2],
+    /// How many of each class, in the order of [`HazardClass::ALL`].
+    pub count_per_class: [usize; 3],
+    /// A path kept clear of hazards (the tractor's track, the approach): NED (north, east) points
+    /// joined by straight segments; one point keeps a disc clear.
+    pub keep_out_path_ne_m: Vec<[f64; 2]>,
+    /// How far from the path a hazard's bounding circle must stay, metres.
+    pub keep_out_radius_m: f64,
+    /// Least gap between two hazards' bounding circles, metres.
+    pub min_gap_m: f64,
+}
+
+impl Default for ScatterConfig {
+    fn default() -> Self {
+        Self {
+            north_m: [-60.0, 60.0],
+            east_m: [-60.0, 60.0],
+            count_per_class: [6, 4, 2],
+            keep_out_path_ne_m: Vec::new(),
+            keep_out_radius_m: 4.0,
+            min_gap_m: 0.5,
+        }
+    }
+}
+
+/// The hazards of one field.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct HazardField {
+    pub hazards: Vec<Hazard>,
+}
+
+impl HazardField {
+    /// Scatters hazards uniformly over the area, with random headings, none overlapping another
+    /// or the keep-out path. The same seed and config give the same field.
+    pub fn scatter(seed: u64, config: &ScatterConfig) -> Result<Self, SceneError> {
+        let [n0, n1] = config.north_m;
+        let [e0, e1] = config.east_m;
+        if !([n0, n1, e0, e1].iter().all(|x| x.is_finite()) && n0 < n1 && e0 < e1) {
+            return Err(SceneError::Area {
+                north_m: config.north_m,
+                east_m: config.east_m,
+            });
+        }
+        for (name, value) in [
+            ("keep_out_radius_m", config.keep_out_radius_m),
+            ("min_gap_m", config.min_gap_m),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(SceneError::Setting { name, value });
+            }
+        }
+        if let Some(bad) = config
+            .keep_out_path_ne_m
+            .iter()
+            .flatten()
+            .find(|x| !x.is_finite())
+        {
+            return Err(SceneError::Setting {
+                name: "keep_out_path_ne_m",
+                value: *bad,
+            });
+        }
+        let mut rng = SplitMix64::new(seed ^ 0x6861_7a61_7264);
+        let mut hazards: Vec<Hazard> = Vec::new();
+        // Largest first: big objects are the hardest to fit once the field fills up.
+        for class in HazardClass::ALL.into_iter().rev() {
+            let wanted = config.count_per_class[class as usize];
+            let radius_m = class.bounding_radius_m();
+            for placed in 0..wanted {
+                let mut spot = None;
+                for _ in 0..2000 {
+                    let north_m = n0 + (n1 - n0) * rng.next_f64();
+                    let east_m = e0 + (e1 - e0) * rng.next_f64();
+                    let clear_of_others = hazards.iter().all(|h| {
+                        let gap = (h.north_m - north_m).hypot(h.east_m - east_m);
+                        gap >= radius_m + h.class.bounding_radius_m() + config.min_gap_m
+                    });
+                    let clear_of_path =
+                        distance_to_path_m(&config.keep_out_path_ne_m, north_m, east_m)
+                            >= radius_m + config.keep_out_radius_m;
+                    if clear_of_others && clear_of_path {
+                        spot = Some((north_m, east_m));
+                        break;
+                    }
+                }
+                let Some((north_m, east_m)) = spot else {
+                    return Err(SceneError::Crowded {
+                        class,
+                        placed_of: placed,
+                        wanted,
+                    });
+                };
+                let yaw_rad = (2.0 * rng.next_f64() - 1.0) * PI;
+                hazards.push(Hazard {
+                    class,
+                    north_m,
+                    east_m,
+                    yaw_rad,
+                    id: hazards.len() as u32,
+                });
+            }
+        }
+        Ok(Self { hazards })
+    }
+}
+
+/// Distance from (north, east) to a polyline; infinite for an empty path.
+fn distance_to_path_m(path: &[[f64; 2]], north_m: f64, east_m: f64) -> f64 {
+    let to_point = |p: &[f64; 2]| (p[0] - north_m).hypot(p[1] - east_m);
+    let mut best = path.first().map_or(f64::INFINITY, to_point);
+    for pair in path.windows(2) {
+        let (a, b) = (pair[0], pair[1]);
+        let (dn, de) = (b[0] - a[0], b[1] - a[1]);
+        let length2 = dn * dn + de * de;
+        let t = if length2 > 0.0 {
+            (((north_m - a[0]) * dn + (east_m - a[1]) * de) / length2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        best = best.min((a[0] + t * dn - north_m).hypot(a[1] + t * de - east_m));
+    }
+    best
+}
+
+/// Where the pad is: its centre's NED position (height above the ground) and heading.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PadPose {
+    pub north_m: f64,
+    pub east_m: f64,
+    /// Height of the pad's surface above the ground (the tractor's roof), metres.
+    pub height_m: f64,
+    pub yaw_rad: f64,
+}
+
+/// The tractor's roof around the pad, drawn darker than the pad so the pad stands out as on a
+/// real vehicle. It lies on the pad's plane: the pad is mounted on it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TractorBody {
+    /// Along the pad's heading, metres.
+    pub length_m: f64,
+    /// Across the pad's heading, metres.
+    pub width_m: f64,
+    pub intensity: f32,
+}
+
+impl Default for TractorBody {
+    fn default() -> Self {
+        Self {
+            length_m: 3.0,
+            width_m: 2.0,
+            intensity: 0.22,
+        }
+    }
+}
+
+/// The simulated world as the camera sees it. Build it once; move the pad every frame with
+/// [`SimScene::set_pad_pose`]; [`SimScene::visible_scene`] gives the renderer what one camera can see.
+#[derive(Debug, Clone)]
+pub struct SimScene {
+    field: Texture,
+    layout: LandingMarkerLayout,
+    pad: Option<PadPose>,
+    tractor_body: Option<TractorBody>,
+    hazards: Vec<Hazard>,
+    hazard_patches: Vec<Patch>,
+}
+
+impl SimScene {
+    /// A bare field of the given seed (no pad, no hazards); the reference pad layout. The field
+    /// is [`baked_texture`] of [`Texture::field`]: the procedural field costs ~50 ns a sample,
+    /// too much for a 640×480 frame in a few milliseconds.
+    pub fn new(field_seed: u64) -> Self {
+        Self {
+            field: baked_texture(
+                Texture::field(field_seed),
+                FIELD_TEXEL_M,
+                FIELD_BAKED_HALF_EXTENT_M,
+            ),
+            layout: LandingMarkerLayout::default(),
+            pad: None,
+            tractor_body: None,
+            hazards: Vec::new(),
+            hazard_patches: Vec::new(),
+        }
+    }
+
+    /// A different background texture (tests use uniform ones).
+    pub fn with_field_texture(mut self, field: Texture) -> Self {
+        self.field = field;
+        let hazards = std::mem::take(&mut self.hazards);
+        self.with_hazards(HazardField { hazards })
+    }
+
+    /// The pad's printed layout; checked here so a bad one fails before the first frame.
+    pub fn with_layout(mut self, layout: LandingMarkerLayout) -> Result<Self, SceneError> {
+        layout.validate()?;
+        self.layout = layout;
+        Ok(self)
+    }
+
+    pub fn with_pad(mut self, pose: PadPose) -> Result<Self, SceneError> {
+        self.set_pad_pose(pose)?;
+        Ok(self)
+    }
+
+    pub fn with_tractor_body(mut self, body: TractorBody) -> Result<Self, SceneError> {
+        let ok = |x: f64| x.is_finite() && x > 0.0;
+        if !(ok(body.length_m) && ok(body.width_m)) {
+            return Err(SceneError::TractorBody {
+                length_m: body.length_m,
+                width_m: body.width_m,
+            });
+        }
+        self.tractor_body = Some(body);
+        Ok(self)
+    }
+
+    pub fn with_hazards(mut self, field: HazardField) -> Self {
+        self.hazard_patches = field.hazards.iter().map(|h| h.patch(&self.field)).collect();
+        self.hazards = field.hazards;
+        self
+    }
+
+    /// Moves the pad (the tractor drives).
+    pub fn set_pad_pose(&mut self, pose: PadPose) -> Result<(), SceneError> {
+        let finite = [pose.north_m, pose.east_m, pose.height_m, pose.yaw_rad]
+            .iter()
+            .all(|x| x.is_finite());
+        if !(finite && pose.height_m >= 0.0) {
+            return Err(SceneError::PadPose(pose));
+        }
+        self.pad = Some(pose);
+        Ok(())
+    }
+
+    pub fn pad_pose(&self) -> Option<PadPose> {
+        self.pad
+    }
+
+    pub fn layout(&self) -> &LandingMarkerLayout {
+        &self.layout
+    }
+
+    pub fn hazards(&self) -> &[Hazard] {
+        &self.hazards
+    }
+
+    pub fn field_texture(&self) -> &Texture {
+        &self.field
+    }
+
+    /// The whole scene, nothing culled.
+    pub fn full_scene(&self) -> Result<Scene, SceneError> {
+        self.build(|_, _| true)
+    }
+
+    /// The part of the scene `camera` at `pose` can see: patches whose bounding circle misses the
+    /// image's footprint on their plane are left out, so rendering costs what the view holds, not
+    /// what the field holds.
+    pub fn visible_scene(
+        &self,
+        camera: &PinholeCamera,
+        pose: &CameraPose,
+    ) -> Result<Scene, SceneError> {
+        let ground = footprint_circle(camera, pose, 0.0);
+        let pad_plane = self
+            .pad
+            .and_then(|p| footprint_circle(camera, pose, -p.height_m));
+        self.build(|patch: &Patch, radius_m: f64| {
+            let circle = if patch.down_m == 0.0 {
+                ground
+            } else {
+                pad_plane
+            };
+            // No footprint (a corner above the horizon): keep everything.
+            circle
+                .is_none_or(|(n, e, r)| (patch.north_m - n).hypot(patch.east_m - e) <= r + radius_m)
+        })
+    }
+
+    fn build(&self, keep: impl Fn(&Patch, f64) -> bool) -> Result<Scene, SceneError> {
+        let mut scene = Scene::new(self.field.clone());
+        for (patch, hazard) in self.hazard_patches.iter().zip(&self.hazards) {
+            if keep(patch, hazard.class.bounding_radius_m()) {
+                scene.patches.push(patch.clone());
+            }
+        }
+        if let Some(pad) = self.pad {
+            let down_m = -pad.height_m;
+            if let Some(body) = self.tractor_body {
+                let roof = Patch::new(
+                    pad.north_m,
+                    pad.east_m,
+                    pad.yaw_rad,
+                    body.width_m,
+                    body.length_m,
+                    Texture::uniform(body.intensity),
+                )
+                .at_down_m(down_m);
+                if keep(&roof, 0.5 * body.length_m.hypot(body.width_m)) {
+                    scene.patches.push(roof);
+                }
+            }
+            let pad_radius_m = self.layout.pad_size_m * std::f64::consts::FRAC_1_SQRT_2;
+            let probe = Patch::square(pad.north_m, pad.east_m, 0.0, 1.0, Texture::uniform(1.0))
+                .at_down_m(down_m);
+            if keep(&probe, pad_radius_m) {
+                // Drawn after the roof on the same plane: the pad covers it.
+                scene.patches.extend(self.layout.patches(
+                    pad.north_m,
+                    pad.east_m,
+                    down_m,
+                    pad.yaw_rad,
+                )?);
+            }
+        }
+        Ok(scene)
+    }
+}
+
+/// Texel of the baked field: finer than the camera's ground sampling distance at the heights where
+/// the field matters (1.35 cm a pixel at 7.5 m with the default camera), bilinear in between.
+pub const FIELD_TEXEL_M: f64 = 0.02;
+/// The baked part of the field reaches this far from the origin; beyond it the field is computed.
+pub const FIELD_BAKED_HALF_EXTENT_M: f64 = 300.0;
+
+/// Texels a tile side; a tile is baked on the first sample that falls in it.
+const TILE_TEXELS: usize = 128;
+
+/// A ground texture sampled on a grid of tiles, each computed once on first use and bilinearly
+/// interpolated: a few nanoseconds a sample whatever the source costs, and memory only for the
+/// tiles the camera has seen.
+struct BakedTexture {
+    source: Texture,
+    texel_m: f64,
+    texels_per_m: f64,
+    limit_texels: f64,
+    origin_m: [f64; 2],
+    tiles_per_side: usize,
+    /// Each tile holds (TILE_TEXELS + 1)² values: one texel of overlap, so interpolation never
+    /// needs a neighbouring tile.
+    tiles: Box<[OnceLock<Box<[f32]>>]>,
+}
+
+impl BakedTexture {
+    fn sample(&self, north_m: f64, east_m: f64) -> f32 {
+        let gn = (north_m - self.origin_m[0]) * self.texels_per_m;
+        let ge = (east_m - self.origin_m[1]) * self.texels_per_m;
+        let limit = self.limit_texels;
+        // Written so that NaN falls through to the source too.
+        if !(gn >= 0.0 && ge >= 0.0 && gn < limit && ge < limit) {
+            return self.source.sample(north_m, east_m);
+        }
+        // In range and not negative: truncation is ⌊·⌋, and u32 conversions are cheap.
+        let (in_, ie) = (gn as u32 as usize, ge as u32 as usize);
+        let (fn_, fe) = ((gn - in_ as f64) as f32, (ge - ie as f64) as f32);
+        let (tn, te) = (in_ / TILE_TEXELS, ie / TILE_TEXELS);
+        let Some(cell) = self.tiles.get(tn * self.tiles_per_side + te) else {
+            return self.source.sample(north_m, east_m);
+        };
+        let tile = cell.get_or_init(|| self.bake(tn, te));
+        let stride = TILE_TEXELS + 1;
+        let i = (in_ % TILE_TEXELS) * stride + ie % TILE_TEXELS;
+        // One slice of the two rows the interpolation needs: one bounds check, not four.
+        let Some(q) = tile.get(i..i + stride + 2) else {
+            return self.source.sample(north_m, east_m);
+        };
+        let top = q[0] + (q[1] - q[0]) * fe;
+        let bottom = q[stride] + (q[stride + 1] - q[stride]) * fe;
+        top + (bottom - top) * fn_
+    }
+
+    fn bake(&self, tile_n: usize, tile_e: usize) -> Box<[f32]> {
+        let stride = TILE_TEXELS + 1;
+        let mut values = Vec::with_capacity(stride * stride);
+        for n in 0..stride {
+            for e in 0..stride {
+                let north_m = self.origin_m[0] + ((tile_n * TILE_TEXELS + n) as f64) * self.texel_m;
+                let east_m = self.origin_m[1] + ((tile_e * TILE_TEXELS + e) as f64) * self.texel_m;
+                values.push(self.source.sample(north_m, east_m));
+            }
+        }
+        values.into_boxed_slice()
+    }
+}
+
+/// `source` (a function of world north, east) baked lazily on a grid of `texel_m` texels over
+/// the square of half-side `half_extent_m` around the origin, computed directly outside it. A bad
+/// texel or extent (not finite, not positive) gives `source` itself.
+pub fn baked_texture(source: Texture, texel_m: f64, half_extent_m: f64) -> Texture {
+    if !(texel_m.is_finite() && texel_m > 0.0 && half_extent_m.is_finite() && half_extent_m > 0.0) {
+        return source;
+    }
+    let tile_m = TILE_TEXELS as f64 * texel_m;
+    let tiles_per_side = ((2.0 * half_extent_m / tile_m).ceil() as usize).clamp(1, 4096);
+    let half_m = 0.5 * tiles_per_side as f64 * tile_m;
+    let baked = Arc::new(BakedTexture {
+        source,
+        texel_m,
+        texels_per_m: 1.0 / texel_m,
+        limit_texels: (tiles_per_side * TILE_TEXELS) as f64,
+        origin_m: [-half_m, -half_m],
+        tiles_per_side,
+        tiles: (0..tiles_per_side * tiles_per_side)
+            .map(|_| OnceLock::new())
+            .collect(),
+    });
+    Texture::from_fn(move |north_m, east_m| baked.sample(north_m, east_m))
+}
+
+/// The circle (north, east, radius) around where the image's corners meet the plane
+/// `down = plane_down_m`; `None` when a corner misses it (looks above the horizon).
+fn footprint_circle(
+    camera: &PinholeCamera,
+    pose: &CameraPose,
+    plane_down_m: f64,
+) -> Option<(f64, f64, f64)> {
+    let (right, bottom) = (camera.width_px as f64 - 0.5, camera.height_px as f64 - 0.5);
+    let mut corners = Vec::with_capacity(4);
+    for (u, v) in [(-0.5, -0.5), (right, -0.5), (right, bottom), (-0.5, bottom)] {
+        corners.push(camera.pixel_to_plane(pose, u, v, plane_down_m)?);
+    }
+    let centre: Vector3<f64> = corners.iter().map(|c| c.coords).sum::<Vector3<f64>>() / 4.0;
+    // Barrel distortion can push the edges' middles beyond the corners' hull: a margin.
+    let radius_m = corners
+        .iter()
+        .map(|c| (c.x - centre.x).hypot(c.y - centre.y))
+        .fold(0.0, f64::max)
+        * 1.1;
+    Some((centre.x, centre.y, radius_m))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use algorithms::vision::render::{render, RenderOptions};
+
+    fn camera_at(altitude_m: f64) -> (PinholeCamera, CameraPose) {
+        let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
+        let pose = CameraPose::downward(Vector3::new(0.0, 0.0, -altitude_m), 0.0, 0.0, 0.0);
+        (camera, pose)
+    }
+
+    #[test]
+    fn hazard_class_names_round_trip() {
+        for class in HazardClass::ALL {
+            assert_eq!(class.to_string().parse::<HazardClass>().unwrap(), class);
+        }
+        assert!(matches!(
+            "tractor".parse::<HazardClass>(),
+            Err(SceneError::UnknownHazardClass(name)) if name == "tractor"
+        ));
+    }
+
+    #[test]
+    fn scatter_is_deterministic_per_seed_and_never_overlaps() {
+        let config = ScatterConfig {
+            north_m: [-30.0, 30.0],
+            east_m: [-30.0, 30.0],
+            count_per_class: [20, 12, 6],
+            keep_out_path_ne_m: vec![[-30.0, 0.0], [30.0, 0.0]],
+            keep_out_radius_m: 3.0,
+            min_gap_m: 0.3,
+        };
+        let a = HazardField::scatter(7, &config).unwrap();
+        assert_eq!(a, HazardField::scatter(7, &config).unwrap());
+        assert_ne!(a, HazardField::scatter(8, &config).unwrap());
+        assert_eq!(a.hazards.len(), 38);
+        for class in HazardClass::ALL {
+            let count = a.hazards.iter().filter(|h| h.class == class).count();
+            assert_eq!(count, config.count_per_class[class as usize]);
+        }
+        for (i, h) in a.hazards.iter().enumerate() {
+            assert!(h.north_m.abs() <= 30.0 && h.east_m.abs() <= 30.0);
+            // The path runs along east = 0.
+            assert!(h.east_m.abs() >= 3.0 + h.class.bounding_radius_m(), "{h:?}");
+            assert_eq!(h.id as usize, i);
+            for g in &a.hazards[i + 1..] {
+                let gap = (h.north_m - g.north_m).hypot(h.east_m - g.east_m);
+                assert!(
+                    gap >= h.class.bounding_radius_m() + g.class.bounding_radius_m() + 0.3,
+                    "{h:?} overlaps {g:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn bad_scatter_settings_are_named_errors() {
+        let crowded = ScatterConfig {
+            north_m: [0.0, 5.0],
+            east_m: [0.0, 5.0],
+            count_per_class: [0, 0, 10],
+            ..Default::default()
+        };
+        assert!(matches!(
+            HazardField::scatter(1, &crowded),
+            Err(SceneError::Crowded {
+                class: HazardClass::Vehicle,
+                ..
+            })
+        ));
+        let flat = ScatterConfig {
+            north_m: [5.0, 5.0],
+            ..Default::default()
+        };
+        assert!(matches!(
+            HazardField::scatter(1, &flat),
+            Err(SceneError::Area { .. })
+        ));
+        let negative = ScatterConfig {
+            min_gap_m: -1.0,
+            ..Default::default()
+        };
+        assert!(matches!(
+            HazardField::scatter(1, &negative),
+            Err(SceneError::Setting {
+                name: "min_gap_m",
+                ..
+            })
+        ));
+        assert!(matches!(
+            SimScene::new(1).with_pad(PadPose {
+                height_m: f64::NAN,
+                ..Default::default()
+            }),
+            Err(SceneError::PadPose(_))
+        ));
+    }
+
+    /// Pixels of a lone hazard seen from 7.5 m: those that do not change with the background.
+    fn hazard_pixels(hazard: Hazard) -> Vec<(usize, usize, u8)> {
+        let (camera, pose) = camera_at(7.5);
+        let options = RenderOptions {
+            supersampling: 1,
+            ..Default::default()
+        };
+        let images: Vec<_> = [0.0f32, 1.0]
+            .into_iter()
+            .map(|level| {
+                let field = Texture::uniform(level);
+                let scene = Scene::new(field.clone()).with_patch(hazard.patch(&field));
+                render(&camera, &pose, &scene, &options).unwrap()
+            })
+            .collect();
+        let mut pixels = Vec::new();
+        for y in 0..480 {
+            for x in 0..640 {
+                if images[0].get(x, y) == images[1].get(x, y) {
+                    pixels.push((x, y, images[0].get(x, y)));
+                }
+            }
+        }
+        pixels
+    }
+
+    #[test]
+    fn each_class_has_its_own_size_shape_and_shade_at_7_5_m() {
+        let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
+        let gsd_m = 7.5 / camera.fx_px;
+        let mut means = Vec::new();
+        for class in HazardClass::ALL {
+            let hazard = Hazard {
+                class,
+                north_m: 0.3,
+                east_m: -0.2,
+                yaw_rad: 0.6,
+                id: 0,
+            };
+            let pixels = hazard_pixels(hazard);
+            let area_m2 = pixels.len() as f64 * gsd_m * gsd_m;
+            let expected_m2 = class.shape_area_m2();
+            assert!(
+                (area_m2 / expected_m2 - 1.0).abs() < 0.2,
+                "{class}: {area_m2} m² against {expected_m2} m²"
+            );
+            // Elongation from the second moments: the ratio of the principal axes.
+            let n = pixels.len() as f64;
+            let (mx, my) = pixels.iter().fold((0.0, 0.0), |(a, b), &(x, y, _)| {
+                (a + x as f64 / n, b + y as f64 / n)
+            });
+            let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
+            for &(x, y, _) in &pixels {
+                let (dx, dy) = (x as f64 - mx, y as f64 - my);
+                sxx += dx * dx / n;
+                syy += dy * dy / n;
+                sxy += dx * dy / n;
+            }
+            let half_trace = 0.5 * (sxx + syy);
+            let root = (0.25 * (sxx - syy).powi(2) + sxy * sxy).sqrt();
+            let elongation = ((half_trace + root) / (half_trace - root)).sqrt();
+            let (length_m, width_m) = class.size_m();
+            let expected = length_m.max(width_m) / length_m.min(width_m);
+            assert!(
+                (elongation / expected - 1.0).abs() < 0.2,
+                "{class}: elongation {elongation}"
+            );
+            let mean = pixels.iter().map(|p| p.2 as f64).sum::<f64>() / n;
+            means.push((class, mean));
+        }
+        for (i, a) in means.iter().enumerate() {
+            for b in &means[i + 1..] {
+                assert!((a.1 - b.1).abs() > 40.0, "{means:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_hazard_shows_the_field_outside_its_shape() {
+        let field = Texture::field(5);
+        let hazard = Hazard {
+            class: HazardClass::Person,
+            north_m: 1.0,
+            east_m: 2.0,
+            yaw_rad: 0.3,
+            id: 0,
+        };
+        let patch = hazard.patch(&field);
+        // The rectangle's corner is outside the round shape: the field's value there.
+        let corner = patch.point_world(0.98, -0.98);
+        assert_eq!(
+            patch.texture.sample(0.98, -0.98),
+            field.sample(corner.x, corner.y)
+        );
+        assert_eq!(patch.texture.sample(0.0, 0.0), 0.62);
+    }
+
+    #[test]
+    fn the_baked_field_matches_the_field_at_its_texels_and_between() {
+        let source = Texture::field(9);
+        let baked = baked_texture(source.clone(), 0.02, 10.0);
+        let half_m =
+            0.5 * (10.0f64 / (TILE_TEXELS as f64 * 0.02) * 2.0).ceil() * TILE_TEXELS as f64 * 0.02;
+        let mut worst = 0f32;
+        for k in 0..500 {
+            // Texel corners, in several tiles.
+            let (i, j) = ((k * 37) % 900, (k * 53) % 900);
+            let (n, e) = (-half_m + i as f64 * 0.02, -half_m + j as f64 * 0.02);
+            worst = worst.max((baked.sample(n, e) - source.sample(n, e)).abs());
+        }
+        assert!(worst < 1e-4, "at texels: {worst}");
+        // Between texels the bilinear value is close; outside the baked square, exact.
+        let mut sum = 0f32;
+        for k in 0..500 {
+            let (n, e) = (k as f64 * 0.0137 - 3.0, k as f64 * -0.0191 + 2.0);
+            sum += (baked.sample(n, e) - source.sample(n, e)).abs();
+        }
+        assert!(sum / 500.0 < 0.03, "between texels: {}", sum / 500.0);
+        assert_eq!(baked.sample(50.0, -70.0), source.sample(50.0, -70.0));
+    }
+
+    #[test]
+    fn the_visible_scene_culls_what_the_camera_cannot_see() {
+        let config = ScatterConfig {
+            north_m: [-100.0, 100.0],
+            east_m: [-100.0, 100.0],
+            count_per_class: [30, 20, 10],
+            ..Default::default()
+        };
+        let scene = SimScene::new(2)
+            .with_hazards(HazardField::scatter(3, &config).unwrap())
+            .with_tractor_body(TractorBody::default())
+            .unwrap()
+            .with_pad(PadPose {
+                north_m: 0.5,
+                east_m: 0.0,
+                height_m: 2.0,
+                yaw_rad: 0.2,
+            })
+            .unwrap();
+        let (camera, pose) = camera_at(8.0);
+        let visible = scene.visible_scene(&camera, &pose).unwrap();
+        let full = scene.full_scene().unwrap();
+        // Roof + pad + n-fold + 3 ArUco.
+        assert_eq!(full.patches.len(), 60 + 6);
+        assert!(visible.patches.len() < 20, "{}", visible.patches.len());
+        assert!(visible.patches.len() >= 6);
+        // Culling does not change the image.
+        let options = RenderOptions {
+            supersampling: 1,
+            ..Default::default()
+        };
+        assert_eq!(
+            render(&camera, &pose, &visible, &options).unwrap(),
+            render(&camera, &pose, &full, &options).unwrap()
+        );
+    }
+}
