@@ -1089,6 +1089,13 @@ fn level_of(levels: &[TaskLevel], task: usize) -> Option<usize> {
     levels.iter().find(|l| l.task == task).map(|l| l.level)
 }
 
+/// The companion computer's modelled power in phase `phase` at `levels` (base plus every
+/// term; flight excluded): what a simulator drains the pack with for the levels it runs.
+pub fn companion_power_w(problem: &PlanProblem, phase: usize, levels: &[TaskLevel]) -> Option<f64> {
+    let phase = problem.phases.get(phase)?;
+    Some(phase_power_w(problem, phase, levels)? - phase.flight_power_w)
+}
+
 /// Flight + base + every term's power at `levels`; None if a level is missing or out of range.
 fn phase_power_w(problem: &PlanProblem, phase: &PlanPhase, levels: &[TaskLevel]) -> Option<f64> {
     let mut power_w = phase.flight_power_w + phase.base_power_w;
