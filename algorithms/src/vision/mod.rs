@@ -6,3 +6,4 @@ pub mod image;
 pub mod landing_marker;
 pub mod nfold;
 pub mod render;
+pub mod yolo;
