@@ -10,6 +10,7 @@ pub mod diagnostic;
 pub mod dry_run;
 pub mod energy;
 pub mod governor;
+pub mod link;
 pub mod mission;
 pub mod plugins;
 pub mod registry;

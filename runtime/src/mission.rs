@@ -13,18 +13,9 @@
 //! itself when setpoints stop (COM_OF_LOSS_T) and holds. When the link returns the sequencer
 //! streams setpoints again and re-enters offboard, and the phase goes on where it was.
 
+pub use crate::link::{AutopilotMode, VehicleCommand};
 use crate::topics::LandingSetpoint;
 use nalgebra::Vector3;
-
-/// The autopilot's flight mode as far as the sequencer cares.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum AutopilotMode {
-    Offboard,
-    Takeoff,
-    Hold,
-    Land,
-    Other,
-}
 
 /// What the link says about the autopilot.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -35,21 +26,6 @@ pub struct AutopilotView {
     pub landed: bool,
     /// Local NED position from the autopilot.
     pub position_ned_m: Vector3<f64>,
-}
-
-/// What the sequencer wants sent.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum MissionCommand {
-    Arm,
-    Takeoff {
-        altitude_m: f64,
-    },
-    /// Switch to offboard (only after setpoints have been streaming).
-    StartOffboard,
-    Velocity {
-        velocity_ned_m_s: Vector3<f64>,
-    },
-    Land,
 }
 
 /// Something worth reporting, with the time it happened.
@@ -194,7 +170,7 @@ impl MissionSequencer {
     }
 
     /// One step: the commands to send now, and what happened.
-    pub fn step(&mut self, input: &SequencerInput) -> (Vec<MissionCommand>, Vec<MissionEvent>) {
+    pub fn step(&mut self, input: &SequencerInput) -> (Vec<VehicleCommand>, Vec<MissionEvent>) {
         let mut commands = Vec::new();
         let mut events = Vec::new();
         let now_s = input.time_s;
@@ -235,7 +211,7 @@ impl MissionSequencer {
                         sent_s: f64::NEG_INFINITY,
                     };
                 } else {
-                    commands.push(MissionCommand::Arm);
+                    commands.push(VehicleCommand::Arm);
                     self.stage = Stage::Arming {
                         since_s: now_s,
                         sent_s: now_s,
@@ -246,7 +222,7 @@ impl MissionSequencer {
                 if autopilot.armed {
                     events.push(MissionEvent::Armed);
                     self.takeoff_altitude_down_m = Some(autopilot.position_ned_m.z);
-                    commands.push(MissionCommand::Takeoff {
+                    commands.push(VehicleCommand::Takeoff {
                         altitude_m: self.plan.cruise_altitude_m,
                     });
                     self.stage = Stage::TakingOff {
@@ -262,7 +238,7 @@ impl MissionSequencer {
                     });
                     self.stage = Stage::Done;
                 } else if now_s - sent_s >= self.plan.command_retry_s {
-                    commands.push(MissionCommand::Arm);
+                    commands.push(VehicleCommand::Arm);
                     self.stage = Stage::Arming {
                         since_s,
                         sent_s: now_s,
@@ -291,12 +267,12 @@ impl MissionSequencer {
                             self.plan.cruise_altitude_m, self.plan.command_timeout_s
                         ),
                     });
-                    commands.push(MissionCommand::Land);
+                    commands.push(VehicleCommand::Land);
                     self.stage = Stage::Done;
                 } else if autopilot.mode != AutopilotMode::Takeoff
                     && now_s - sent_s >= self.plan.command_retry_s
                 {
-                    commands.push(MissionCommand::Takeoff {
+                    commands.push(VehicleCommand::Takeoff {
                         altitude_m: self.plan.cruise_altitude_m,
                     });
                     self.stage = Stage::TakingOff {
@@ -313,7 +289,7 @@ impl MissionSequencer {
                 } else if now_s - since_s >= self.plan.offboard_preamble_s
                     && sent_s.is_none_or(|sent| now_s - sent >= self.plan.command_retry_s)
                 {
-                    commands.push(MissionCommand::StartOffboard);
+                    commands.push(VehicleCommand::SetOffboard);
                     self.stage = Stage::EnteringOffboard {
                         since_s,
                         sent_s: Some(now_s),
@@ -327,7 +303,7 @@ impl MissionSequencer {
                     });
                 if self.phase == Some(last_phase) && touchdown {
                     events.push(MissionEvent::Touchdown);
-                    commands.push(MissionCommand::Land);
+                    commands.push(VehicleCommand::Land);
                     self.stage = Stage::Landing { sent_s: now_s };
                 } else {
                     commands.push(self.flying_setpoint(&autopilot, input, now_s, &mut events));
@@ -339,7 +315,7 @@ impl MissionSequencer {
                 } else if autopilot.mode != AutopilotMode::Land
                     && now_s - sent_s >= self.plan.command_retry_s
                 {
-                    commands.push(MissionCommand::Land);
+                    commands.push(VehicleCommand::Land);
                     self.stage = Stage::Landing { sent_s: now_s };
                 }
             }
@@ -369,7 +345,7 @@ impl MissionSequencer {
         input: &SequencerInput,
         now_s: f64,
         events: &mut Vec<MissionEvent>,
-    ) -> MissionCommand {
+    ) -> VehicleCommand {
         let last_phase = self.plan.phase_names.len().saturating_sub(1);
         let phase = *self.phase.get_or_insert(0);
         if self.land_now && phase < last_phase {
@@ -397,7 +373,10 @@ impl MissionSequencer {
                 .landing
                 .map_or_else(Vector3::zeros, |s| s.velocity_setpoint_ned_m_s)
         };
-        MissionCommand::Velocity { velocity_ned_m_s }
+        VehicleCommand::VelocityNed {
+            velocity_ned_m_s,
+            yaw_rad: None,
+        }
     }
 
     /// Meeting point minus vehicle, NED, with the height error in down.
@@ -458,24 +437,27 @@ mod tests {
             }
         }
 
-        fn apply(&mut self, commands: &[MissionCommand], dt_s: f64) {
+        fn apply(&mut self, commands: &[VehicleCommand], dt_s: f64) {
             for command in commands {
                 match *command {
-                    MissionCommand::Arm => self.view.armed = true,
-                    MissionCommand::Takeoff { .. } if self.view.armed => {
+                    VehicleCommand::Arm => self.view.armed = true,
+                    VehicleCommand::Takeoff { .. } if self.view.armed => {
                         self.view.mode = AutopilotMode::Takeoff;
                         self.view.landed = false;
                     }
-                    MissionCommand::Takeoff { .. } => {}
-                    MissionCommand::StartOffboard => {
+                    VehicleCommand::Takeoff { .. } => {}
+                    VehicleCommand::SetOffboard => {
                         assert!(self.streamed_s > 0.0, "offboard before any setpoint");
                         self.view.mode = AutopilotMode::Offboard;
                     }
-                    MissionCommand::Velocity { velocity_ned_m_s } => {
+                    VehicleCommand::VelocityNed {
+                        velocity_ned_m_s, ..
+                    } => {
                         self.velocity = velocity_ned_m_s;
                         self.streamed_s += dt_s;
                     }
-                    MissionCommand::Land => self.view.mode = AutopilotMode::Land,
+                    VehicleCommand::Land => self.view.mode = AutopilotMode::Land,
+                    other => panic!("the sequencer never sends {other:?}"),
                 }
             }
             match self.view.mode {
@@ -578,9 +560,11 @@ mod tests {
                 landing: None,
                 land_now: None,
             });
-            if let Some(MissionCommand::Velocity { velocity_ned_m_s }) = commands
+            if let Some(VehicleCommand::VelocityNed {
+                velocity_ned_m_s, ..
+            }) = commands
                 .iter()
-                .find(|c| matches!(c, MissionCommand::Velocity { .. }))
+                .find(|c| matches!(c, VehicleCommand::VelocityNed { .. }))
             {
                 assert!(velocity_ned_m_s.norm() <= 3.0 + 1e-9);
             }
@@ -685,7 +669,7 @@ mod tests {
             });
             arms += commands
                 .iter()
-                .filter(|c| **c == MissionCommand::Arm)
+                .filter(|c| **c == VehicleCommand::Arm)
                 .count();
             aborted |= events
                 .iter()

@@ -1,6 +1,7 @@
 //! The built-in simulator: multirotor, tractor, wind, battery, downward camera and a MAVLink
 //! autopilot, speaking to the runtime only through MAVLink and camera frames.
 
+pub mod autopilot;
 pub mod camera;
 pub mod flight;
 pub mod outcome;

@@ -1,0 +1,502 @@
+//! Connection strings and the transports behind them.
+//!
+//! `udpin:HOST:PORT` listens (the usual companion side: PX4 sends to the companion's port,
+//! and the link answers the address the autopilot's datagrams come from); `udpout:HOST:PORT`
+//! sends to a listening autopilot; `tcpout:HOST:PORT` connects to one (PX4 SITL, ArduPilot
+//! SITL's 5760); `serial:/dev/ttyXXX:BAUD` is a telemetry port.
+//!
+//! UDP is handled here on a plain `UdpSocket`, one datagram at a time, with MAVLink framing and
+//! CRC from the `mavlink` crate: that is what lets the link count a garbage datagram (the crate's
+//! stream reader silently resynchronises past it), wait with a wall-clock timeout (lockstep) and
+//! bind an OS-chosen port. TCP and serial go through `mavlink::connect` (MAVLink 2).
+
+use super::LinkError;
+use mavlink::dialects::common::MavMessage;
+use mavlink::error::MessageReadError;
+use mavlink::{MavConnection, MavHeader, MavlinkVersion};
+use std::fmt;
+use std::io::{self, ErrorKind};
+use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
+use std::time::{Duration, Instant};
+
+/// The schemes a connection string may start with.
+pub const SCHEMES: &str = "udpin, udpout, tcpout, serial";
+/// Baud rates a serial link may use (what Linux tty drivers and flight controllers support).
+pub const BAUD_RATES: [u32; 13] = [
+    9_600, 19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 500_000, 921_600, 1_000_000,
+    1_500_000, 2_000_000, 3_000_000,
+];
+
+/// A parsed connection string.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ConnectionSpec {
+    /// Listen on HOST:PORT; port 0 lets the OS choose (see `MavlinkLink::local_addr`).
+    UdpIn {
+        host: String,
+        port: u16,
+    },
+    /// Send to HOST:PORT from an OS-chosen local port.
+    UdpOut {
+        host: String,
+        port: u16,
+    },
+    TcpOut {
+        host: String,
+        port: u16,
+    },
+    Serial {
+        device: String,
+        baud: u32,
+    },
+}
+
+impl fmt::Display for ConnectionSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::UdpIn { host, port } => write!(f, "udpin:{host}:{port}"),
+            Self::UdpOut { host, port } => write!(f, "udpout:{host}:{port}"),
+            Self::TcpOut { host, port } => write!(f, "tcpout:{host}:{port}"),
+            Self::Serial { device, baud } => write!(f, "serial:{device}:{baud}"),
+        }
+    }
+}
+
+impl std::str::FromStr for ConnectionSpec {
+    type Err = LinkError;
+
+    fn from_str(input: &str) -> Result<Self, Self::Err> {
+        Self::parse(input)
+    }
+}
+
+impl ConnectionSpec {
+    /// Parses `udpin:HOST:PORT`, `udpout:HOST:PORT`, `tcpout:HOST:PORT` or
+    /// `serial:DEVICE:BAUD`.
+    pub fn parse(input: &str) -> Result<Self, LinkError> {
+        let bad = |why: String| LinkError::BadConnectionString {
+            input: input.to_string(),
+            why,
+        };
+        let trimmed = input.trim();
+        let Some((scheme, rest)) = trimmed.split_once(':') else {
+            return Err(bad(format!(
+                "expected SCHEME:ADDRESS with SCHEME one of {SCHEMES} \
+                 (e.g. udpin:0.0.0.0:14540 or serial:/dev/ttyACM0:921600)"
+            )));
+        };
+        match scheme {
+            "udpin" | "udpout" | "tcpout" => {
+                let Some((host, port)) = rest.rsplit_once(':') else {
+                    return Err(bad(format!("expected {scheme}:HOST:PORT, found no port")));
+                };
+                // Accept [::1] style IPv6 hosts and strip the brackets for display consistency.
+                if host.is_empty() {
+                    return Err(bad(format!(
+                        "expected {scheme}:HOST:PORT, the host is empty (use 0.0.0.0 to listen on all interfaces)"
+                    )));
+                }
+                if host.contains(char::is_whitespace) {
+                    return Err(bad(format!("the host {host:?} contains whitespace")));
+                }
+                let port = parse_port(port, scheme == "udpin").map_err(bad)?;
+                let host = host.to_string();
+                Ok(match scheme {
+                    "udpin" => Self::UdpIn { host, port },
+                    "udpout" => Self::UdpOut { host, port },
+                    _ => Self::TcpOut { host, port },
+                })
+            }
+            "serial" => {
+                let Some((device, baud)) = rest.rsplit_once(':') else {
+                    return Err(bad(
+                        "expected serial:DEVICE:BAUD (e.g. serial:/dev/ttyACM0:921600), found no baud rate"
+                            .to_string(),
+                    ));
+                };
+                if device.is_empty() {
+                    return Err(bad(
+                        "expected serial:DEVICE:BAUD, the device is empty (e.g. /dev/ttyACM0, /dev/ttyTHS1)"
+                            .to_string(),
+                    ));
+                }
+                let baud: u32 = baud.parse().map_err(|_| {
+                    bad(format!(
+                        "the baud rate {baud:?} is not a number; expected one of {BAUD_RATES:?}"
+                    ))
+                })?;
+                if !BAUD_RATES.contains(&baud) {
+                    return Err(bad(format!(
+                        "the baud rate {baud} is not a standard rate; expected one of {BAUD_RATES:?}"
+                    )));
+                }
+                Ok(Self::Serial {
+                    device: device.to_string(),
+                    baud,
+                })
+            }
+            other => {
+                let hint = match other {
+                    "udp" => " (did you mean udpin, to listen, or udpout, to send?)",
+                    "tcp" | "tcpin" => " (did you mean tcpout? the link connects to the autopilot)",
+                    _ => "",
+                };
+                Err(bad(format!(
+                    "unknown scheme {other:?}; expected one of {SCHEMES}{hint}"
+                )))
+            }
+        }
+    }
+
+    /// Opens the connection (MAVLink 2).
+    pub fn open(&self) -> Result<Transport, LinkError> {
+        let opened = match self {
+            Self::UdpIn { host, port } => UdpTransport::listen(&(host.as_str(), *port)),
+            Self::UdpOut { host, port } => UdpTransport::send_to(&(host.as_str(), *port)),
+            Self::TcpOut { .. } | Self::Serial { .. } => {
+                mavlink::connect::<MavMessage>(&self.to_string()).map(|mut connection| {
+                    connection.set_protocol_version(MavlinkVersion::V2);
+                    Transport::Stream(Box::new(connection))
+                })
+            }
+        };
+        opened.map_err(|source| LinkError::Open {
+            spec: self.to_string(),
+            source,
+        })
+    }
+}
+
+fn parse_port(port: &str, zero_allowed: bool) -> Result<u16, String> {
+    let low = if zero_allowed { 0 } else { 1 };
+    let value: u32 = port
+        .parse()
+        .map_err(|_| format!("the port {port:?} is not a number; expected {low}..=65535"))?;
+    if value > 65_535 || value < low {
+        return Err(format!(
+            "the port {value} is out of range; expected {low}..=65535"
+        ));
+    }
+    Ok(value as u16)
+}
+
+/// One batch from a transport.
+#[derive(Debug, Default)]
+pub struct Incoming {
+    pub messages: Vec<(MavHeader, MavMessage)>,
+    /// A datagram (UDP) or frame (stream) that held no valid MAVLink message.
+    pub malformed: bool,
+    /// The sender, for UDP.
+    pub from: Option<SocketAddr>,
+}
+
+/// An open connection.
+pub enum Transport {
+    Udp(UdpTransport),
+    Stream(Box<mavlink::Connection<MavMessage>>),
+}
+
+impl Transport {
+    /// The next datagram or message, waiting up to `wait` (`None`: don't wait). `Ok(None)` when
+    /// nothing came.
+    pub fn receive(&mut self, wait: Option<Duration>) -> io::Result<Option<Incoming>> {
+        match self {
+            Self::Udp(udp) => udp.receive(wait),
+            Self::Stream(connection) => {
+                let deadline = wait.map(|wait| Instant::now() + wait);
+                loop {
+                    match connection.try_recv() {
+                        Ok(message) => {
+                            return Ok(Some(Incoming {
+                                messages: vec![message],
+                                ..Incoming::default()
+                            }))
+                        }
+                        Err(MessageReadError::Parse(_)) => {
+                            return Ok(Some(Incoming {
+                                malformed: true,
+                                ..Incoming::default()
+                            }))
+                        }
+                        Err(MessageReadError::Io(error)) if no_data(&error) => {}
+                        Err(MessageReadError::Io(error)) => return Err(error),
+                    }
+                    match deadline {
+                        Some(deadline) if Instant::now() < deadline => {
+                            std::thread::sleep(Duration::from_micros(200))
+                        }
+                        _ => return Ok(None),
+                    }
+                }
+            }
+        }
+    }
+
+    /// Sends one message; `Ok(false)` when there is no peer yet (udpin before the autopilot
+    /// spoke).
+    pub fn send(&mut self, header: MavHeader, message: &MavMessage) -> io::Result<bool> {
+        match self {
+            Self::Udp(udp) => udp.send(header, message),
+            Self::Stream(connection) => {
+                connection
+                    .send(&header, message)
+                    .map(|_| true)
+                    .map_err(|error| match error {
+                        mavlink::error::MessageWriteError::Io(error) => error,
+                        other => io::Error::other(other.to_string()),
+                    })
+            }
+        }
+    }
+
+    /// The bound local address, for UDP.
+    pub fn local_addr(&self) -> Option<SocketAddr> {
+        match self {
+            Self::Udp(udp) => udp.socket.local_addr().ok(),
+            Self::Stream(_) => None,
+        }
+    }
+}
+
+fn no_data(error: &io::Error) -> bool {
+    matches!(error.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut)
+}
+
+/// MAVLink over a UDP socket, one datagram at a time.
+pub struct UdpTransport {
+    socket: UdpSocket,
+    /// Where datagrams go: fixed for udpout, learned from the autopilot for udpin.
+    peer: Option<SocketAddr>,
+    /// udpin: the peer follows the autopilot's address.
+    learns_peer: bool,
+    buffer: Vec<u8>,
+    encode_buffer: Vec<u8>,
+}
+
+impl UdpTransport {
+    pub fn listen(address: &impl ToSocketAddrs) -> io::Result<Transport> {
+        let socket = UdpSocket::bind(address)?;
+        Ok(Transport::Udp(Self::new(socket, None, true)))
+    }
+
+    pub fn send_to(address: &impl ToSocketAddrs) -> io::Result<Transport> {
+        let peer = address
+            .to_socket_addrs()?
+            .next()
+            .ok_or_else(|| io::Error::new(ErrorKind::AddrNotAvailable, "no address"))?;
+        let local = if peer.is_ipv4() {
+            "0.0.0.0:0"
+        } else {
+            "[::]:0"
+        };
+        let socket = UdpSocket::bind(local)?;
+        Ok(Transport::Udp(Self::new(socket, Some(peer), false)))
+    }
+
+    fn new(socket: UdpSocket, peer: Option<SocketAddr>, learns_peer: bool) -> Self {
+        Self {
+            socket,
+            peer,
+            learns_peer,
+            buffer: vec![0; 65_536],
+            encode_buffer: Vec::with_capacity(300),
+        }
+    }
+
+    /// Sets where replies go (udpin learns it from the autopilot's valid datagrams).
+    pub fn set_peer(&mut self, peer: SocketAddr) {
+        if self.learns_peer {
+            self.peer = Some(peer);
+        }
+    }
+
+    fn receive(&mut self, wait: Option<Duration>) -> io::Result<Option<Incoming>> {
+        match wait {
+            None => self.socket.set_nonblocking(true)?,
+            Some(wait) => {
+                self.socket.set_nonblocking(false)?;
+                // A zero timeout means "block forever" to the OS.
+                self.socket
+                    .set_read_timeout(Some(wait.max(Duration::from_micros(1))))?;
+            }
+        }
+        let (length, from) = match self.socket.recv_from(&mut self.buffer) {
+            Ok(received) => received,
+            Err(error) if no_data(&error) => return Ok(None),
+            // Linux reports an earlier send's ICMP port-unreachable here; no data, not fatal.
+            Err(error) if error.kind() == ErrorKind::ConnectionRefused => return Ok(None),
+            Err(error) => return Err(error),
+        };
+        let messages = decode_datagram(&self.buffer[..length]);
+        Ok(Some(Incoming {
+            malformed: messages.is_empty(),
+            messages,
+            from: Some(from),
+        }))
+    }
+
+    fn send(&mut self, header: MavHeader, message: &MavMessage) -> io::Result<bool> {
+        let Some(peer) = self.peer else {
+            return Ok(false);
+        };
+        self.encode_buffer.clear();
+        mavlink::write_versioned_msg(&mut self.encode_buffer, MavlinkVersion::V2, header, message)
+            .map_err(|error| io::Error::other(error.to_string()))?;
+        match self.socket.send_to(&self.encode_buffer, peer) {
+            Ok(_) => Ok(true),
+            // Nobody listening (yet): UDP drops it, as a radio would.
+            Err(error) if error.kind() == ErrorKind::ConnectionRefused => Ok(false),
+            Err(error) => Err(error),
+        }
+    }
+}
+
+/// Every CRC-valid MAVLink 1 or 2 message in one datagram; garbage between frames is skipped.
+pub fn decode_datagram(datagram: &[u8]) -> Vec<(MavHeader, MavMessage)> {
+    let mut reader = mavlink::MavlinkReader::new(datagram);
+    let mut messages = Vec::new();
+    // Every frame is at least 8 bytes, so this bounds the loop even if the reader misbehaves.
+    for _ in 0..=datagram.len() / 8 {
+        match reader.read_any_message::<MavMessage>() {
+            Ok(message) => messages.push(message),
+            // An unknown id or a bad enum value: that frame is skipped, the rest still read.
+            Err(MessageReadError::Parse(_)) => {}
+            Err(MessageReadError::Io(_)) => break,
+        }
+    }
+    messages
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn why(input: &str) -> String {
+        match ConnectionSpec::parse(input) {
+            Err(LinkError::BadConnectionString { input: echoed, why }) => {
+                assert_eq!(echoed, input);
+                why
+            }
+            other => panic!("{input:?} parsed: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn parses_good_connection_strings() {
+        assert_eq!(
+            ConnectionSpec::parse("udpin:0.0.0.0:14540").unwrap(),
+            ConnectionSpec::UdpIn {
+                host: "0.0.0.0".into(),
+                port: 14540
+            }
+        );
+        assert_eq!(
+            ConnectionSpec::parse("udpin:127.0.0.1:0").unwrap(),
+            ConnectionSpec::UdpIn {
+                host: "127.0.0.1".into(),
+                port: 0
+            }
+        );
+        assert_eq!(
+            ConnectionSpec::parse("udpout:192.168.1.10:14557").unwrap(),
+            ConnectionSpec::UdpOut {
+                host: "192.168.1.10".into(),
+                port: 14557
+            }
+        );
+        assert_eq!(
+            ConnectionSpec::parse("tcpout:localhost:5760").unwrap(),
+            ConnectionSpec::TcpOut {
+                host: "localhost".into(),
+                port: 5760
+            }
+        );
+        assert_eq!(
+            ConnectionSpec::parse("serial:/dev/ttyACM0:921600").unwrap(),
+            ConnectionSpec::Serial {
+                device: "/dev/ttyACM0".into(),
+                baud: 921_600
+            }
+        );
+        assert_eq!(
+            ConnectionSpec::parse("udpin:[::1]:14540").unwrap(),
+            ConnectionSpec::UdpIn {
+                host: "[::1]".into(),
+                port: 14540
+            }
+        );
+        let spec: ConnectionSpec = "serial:/dev/ttyTHS1:57600".parse().unwrap();
+        assert_eq!(spec.to_string(), "serial:/dev/ttyTHS1:57600");
+    }
+
+    #[test]
+    fn rejects_bad_connection_strings_with_the_reason() {
+        assert_eq!(
+            why(""),
+            format!(
+                "expected SCHEME:ADDRESS with SCHEME one of {SCHEMES} \
+                 (e.g. udpin:0.0.0.0:14540 or serial:/dev/ttyACM0:921600)"
+            )
+        );
+        assert!(why("14540").starts_with("expected SCHEME:ADDRESS"));
+        assert_eq!(
+            why("udp:0.0.0.0:14540"),
+            "unknown scheme \"udp\"; expected one of udpin, udpout, tcpout, serial \
+             (did you mean udpin, to listen, or udpout, to send?)"
+        );
+        assert!(why("tcpin:0.0.0.0:5760").contains("did you mean tcpout"));
+        assert!(why("http://x:1").starts_with("unknown scheme \"http\""));
+        assert_eq!(
+            why("udpin:14540"),
+            "expected udpin:HOST:PORT, found no port"
+        );
+        assert!(why("udpin::14540").contains("the host is empty"));
+        assert_eq!(
+            why("udpin:0.0.0.0:abc"),
+            "the port \"abc\" is not a number; expected 0..=65535"
+        );
+        assert_eq!(
+            why("udpin:0.0.0.0:70000"),
+            "the port 70000 is out of range; expected 0..=65535"
+        );
+        assert_eq!(
+            why("udpout:127.0.0.1:0"),
+            "the port 0 is out of range; expected 1..=65535"
+        );
+        assert_eq!(
+            why("tcpout:127.0.0.1:-1"),
+            "the port \"-1\" is not a number; expected 1..=65535"
+        );
+        assert!(why("udpout:127.0.0.1:").contains("is not a number"));
+        assert!(why("udpout:my host:14540").contains("whitespace"));
+        assert!(why("serial:/dev/ttyACM0").contains("found no baud rate"));
+        assert!(why("serial::57600").contains("the device is empty"));
+        assert_eq!(
+            why("serial:/dev/ttyACM0:fast"),
+            format!("the baud rate \"fast\" is not a number; expected one of {BAUD_RATES:?}")
+        );
+        assert_eq!(
+            why("serial:/dev/ttyACM0:12345"),
+            format!("the baud rate 12345 is not a standard rate; expected one of {BAUD_RATES:?}")
+        );
+        let message = ConnectionSpec::parse("udp:1.2.3.4:5")
+            .unwrap_err()
+            .to_string();
+        assert!(message.contains("udp:1.2.3.4:5"), "{message}");
+    }
+
+    #[test]
+    fn opens_udp_on_an_os_chosen_port() {
+        let transport = ConnectionSpec::parse("udpin:127.0.0.1:0")
+            .unwrap()
+            .open()
+            .unwrap();
+        assert_ne!(transport.local_addr().unwrap().port(), 0);
+    }
+
+    #[test]
+    fn a_garbage_datagram_decodes_to_nothing() {
+        assert!(decode_datagram(&[0xfd, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10]).is_empty());
+        assert!(decode_datagram(&[]).is_empty());
+        assert!(decode_datagram(&[0xfd; 300]).is_empty());
+    }
+}

@@ -1,0 +1,651 @@
+//! [`MavlinkLink`]: the runtime's end of the MAVLink connection.
+//!
+//! **Link loss.** The link is [`LinkStatus::Lost`] when no autopilot HEARTBEAT came for
+//! `heartbeat_timeout_s` or no LOCAL_POSITION_NED for `telemetry_timeout_s` (counted from the
+//! first heartbeat until a position arrives). While lost, offboard setpoints are not sent
+//! (PX4's own offboard-loss failsafe flies the vehicle); when the link comes back,
+//! [`MavlinkLink::failsafe_action`] says [`FailsafeAction::HoldThenReenter`] and setpoints stay
+//! suppressed until the mission calls [`MavlinkLink::recover`] (Hold, a zero velocity setpoint,
+//! then OFFBOARD again).
+//!
+//! **Lockstep** (simulation only). Each simulated tick, the autopilot sends its telemetry and
+//! ends the batch with TIMESYNC { tc1: 0, ts1: t_ns }. [`MavlinkLink::poll_lockstep`] blocks
+//! (wall-clock timeout) until that TIMESYNC, processing everything before it with the runtime
+//! clock at t_ns; after sending the tick's commands the runtime calls
+//! [`MavlinkLink::end_tick`], which sends TIMESYNC { tc1: t_ns, ts1: t_ns } (the standard
+//! reply form; tc1 is forced to at least 1 so that t = 0 is not mistaken for a request). The
+//! autopilot reads commands until that reply. UDP keeps datagram order on loopback, so both
+//! sides see the same messages at the same simulated time on every run.
+//!
+//! **Not lockstep** (real autopilot): TIMESYNC requests (tc1 = 0) are answered with
+//! tc1 = own clock in ns and ts1 echoed, and used for nothing else.
+
+use super::connection::{ConnectionSpec, Incoming, Transport};
+use super::mapping::{
+    command_message, companion_heartbeat, AutopilotKind, AutopilotStatus, CommandAck,
+    CommandTarget, TelemetryState, VehicleCommand,
+};
+use super::LinkError;
+use crate::telemetry::BatteryTelemetry;
+use crate::topics::VehicleState;
+use mavlink::dialects::common::{MavMessage, TIMESYNC_DATA};
+use mavlink::MavHeader;
+use nalgebra::Vector3;
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+/// Upper bound on datagrams drained by one `poll`, so a flood cannot starve the mission loop.
+const MAX_DATAGRAMS_PER_POLL: usize = 10_000;
+
+/// The link's settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinkConfig {
+    /// No autopilot HEARTBEAT for this long: the link is lost.
+    pub heartbeat_timeout_s: f64,
+    /// No LOCAL_POSITION_NED for this long: the link is lost (the landing loop flies on it).
+    pub telemetry_timeout_s: f64,
+    /// The companion's own HEARTBEAT period.
+    pub heartbeat_period_s: f64,
+    /// The companion's system id (the vehicle's, as PX4 expects of an onboard computer).
+    pub system_id: u8,
+    /// MAV_COMP_ID_ONBOARD_COMPUTER.
+    pub component_id: u8,
+    /// The autopilot's ids: telemetry from anyone else is ignored.
+    pub target_system_id: u8,
+    pub target_component_id: u8,
+}
+
+impl Default for LinkConfig {
+    fn default() -> Self {
+        Self {
+            heartbeat_timeout_s: 1.5,
+            telemetry_timeout_s: 0.5,
+            heartbeat_period_s: 1.0,
+            system_id: 1,
+            component_id: super::mapping::ONBOARD_COMPUTER_COMPONENT_ID,
+            target_system_id: 1,
+            target_component_id: 1,
+        }
+    }
+}
+
+/// Whether the autopilot is heard.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LinkStatus {
+    /// No autopilot heartbeat yet.
+    Connecting,
+    Connected,
+    /// Lost since `since_s` (runtime clock): the first deadline that expired.
+    Lost {
+        since_s: f64,
+    },
+}
+
+/// What the mission must do about the link.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FailsafeAction {
+    /// Fly as usual.
+    Continue,
+    /// No link (yet or any more): stop streaming offboard setpoints; the autopilot's own
+    /// failsafe is in charge.
+    StopSetpoints,
+    /// The link is back after a loss: call [`MavlinkLink::recover`] (Hold, then re-enter
+    /// OFFBOARD) before streaming setpoints again.
+    HoldThenReenter,
+}
+
+/// Counters since the link opened.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LinkStats {
+    pub messages_received: u64,
+    /// Datagrams (UDP) or frames (TCP/serial) that held no valid MAVLink message.
+    pub malformed: u64,
+    /// Messages from systems or components other than the autopilot.
+    pub ignored: u64,
+    pub messages_sent: u64,
+    /// Messages not sent because no autopilot address is known yet (udpin).
+    pub unsent_no_peer: u64,
+    /// Offboard setpoints held back by the failsafe.
+    pub suppressed_setpoints: u64,
+    pub commands_denied: u64,
+}
+
+/// What one poll brought.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinkUpdate {
+    pub status: LinkStatus,
+    /// The latest vehicle state, when this poll brought new attitude/position/height data.
+    pub vehicle_state: Option<VehicleState>,
+    /// The latest battery reading, when this poll brought one.
+    pub battery: Option<BatteryTelemetry>,
+    /// The latest autopilot heartbeat, when this poll brought one.
+    pub autopilot: Option<AutopilotStatus>,
+    /// COMMAND_ACKs, in arrival order.
+    pub acks: Vec<CommandAck>,
+    pub messages: usize,
+    pub malformed: usize,
+}
+
+/// What happened to one command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sent {
+    Sent,
+    /// No autopilot address known yet (udpin before the autopilot spoke).
+    NoPeer,
+    /// An offboard setpoint while the link is lost or recovering.
+    Suppressed,
+}
+
+/// The runtime's MAVLink connection to the autopilot.
+pub struct MavlinkLink {
+    transport: Transport,
+    config: LinkConfig,
+    telemetry: TelemetryState,
+    now_s: f64,
+    first_heartbeat_s: Option<f64>,
+    last_heartbeat_s: Option<f64>,
+    last_position_s: Option<f64>,
+    last_sent_heartbeat_s: Option<f64>,
+    status: LinkStatus,
+    recovery_pending: bool,
+    sequence: u8,
+    autopilot_kind: AutopilotKind,
+    stats: LinkStats,
+}
+
+impl MavlinkLink {
+    /// Opens a connection string (see [`ConnectionSpec::parse`]).
+    pub fn connect(address: &str, config: LinkConfig) -> Result<Self, LinkError> {
+        let spec = ConnectionSpec::parse(address)?;
+        Self::open(&spec, config)
+    }
+
+    pub fn open(spec: &ConnectionSpec, config: LinkConfig) -> Result<Self, LinkError> {
+        Ok(Self::with_transport(spec.open()?, config))
+    }
+
+    /// `udpin` on 127.0.0.1 with an OS-chosen port, for the simulator: give
+    /// [`Self::local_addr`] to the simulated autopilot, which sends there.
+    pub fn bind_local_ephemeral(config: LinkConfig) -> Result<Self, LinkError> {
+        Self::open(
+            &ConnectionSpec::UdpIn {
+                host: "127.0.0.1".to_string(),
+                port: 0,
+            },
+            config,
+        )
+    }
+
+    fn with_transport(transport: Transport, config: LinkConfig) -> Self {
+        Self {
+            transport,
+            config,
+            telemetry: TelemetryState::new(),
+            now_s: 0.0,
+            first_heartbeat_s: None,
+            last_heartbeat_s: None,
+            last_position_s: None,
+            last_sent_heartbeat_s: None,
+            status: LinkStatus::Connecting,
+            recovery_pending: false,
+            sequence: 0,
+            autopilot_kind: AutopilotKind::Px4,
+            stats: LinkStats::default(),
+        }
+    }
+
+    /// The local UDP address (None for TCP/serial).
+    pub fn local_addr(&self) -> Option<SocketAddr> {
+        self.transport.local_addr()
+    }
+
+    pub fn config(&self) -> &LinkConfig {
+        &self.config
+    }
+
+    pub fn status(&self) -> LinkStatus {
+        self.status
+    }
+
+    pub fn stats(&self) -> LinkStats {
+        self.stats
+    }
+
+    /// Everything the autopilot reported so far.
+    pub fn telemetry(&self) -> &TelemetryState {
+        &self.telemetry
+    }
+
+    /// The latest vehicle state, whether or not the last poll refreshed it.
+    pub fn vehicle_state(&self) -> Option<VehicleState> {
+        self.telemetry.vehicle_state(self.now_s)
+    }
+
+    /// Drains what has arrived without blocking; `now_s` is the runtime's monotonic clock.
+    pub fn poll(&mut self, now_s: f64) -> LinkUpdate {
+        self.now_s = now_s;
+        let mut update = self.empty_update();
+        for _ in 0..MAX_DATAGRAMS_PER_POLL {
+            match self.transport.receive(None) {
+                Ok(Some(incoming)) => {
+                    self.process(incoming, &mut update, None);
+                }
+                Ok(None) => break,
+                Err(error) => {
+                    tracing::warn!(%error, "MAVLink receive failed");
+                    break;
+                }
+            }
+        }
+        self.finish_poll(now_s, update)
+    }
+
+    /// Lockstep: processes everything up to the autopilot's TIMESYNC { tc1: 0, ts1: t_ns },
+    /// waiting for it up to `timeout` of wall-clock time. The runtime clock is t_ns.
+    pub fn poll_lockstep(&mut self, t_ns: u64, timeout: Duration) -> Result<LinkUpdate, LinkError> {
+        let now_s = t_ns as f64 / 1e9;
+        self.now_s = now_s;
+        let deadline = Instant::now() + timeout;
+        let mut update = self.empty_update();
+        loop {
+            let remaining = deadline.saturating_duration_since(Instant::now());
+            if remaining.is_zero() {
+                return Err(LinkError::LockstepTimeout {
+                    t_ns,
+                    timeout_s: timeout.as_secs_f64(),
+                });
+            }
+            let Some(incoming) = self.transport.receive(Some(remaining))? else {
+                continue;
+            };
+            match self.process(incoming, &mut update, Some(t_ns)) {
+                Some(got_ns) if got_ns == t_ns => break,
+                Some(got_ns) if got_ns > t_ns => {
+                    return Err(LinkError::LockstepOutOfStep {
+                        expected_ns: t_ns,
+                        got_ns,
+                    })
+                }
+                // A barrier from an earlier tick (a retried run), or none yet.
+                _ => {}
+            }
+        }
+        Ok(self.finish_poll(now_s, update))
+    }
+
+    /// Lockstep: the runtime has sent its commands for tick t_ns; tells the autopilot so with
+    /// TIMESYNC { tc1: t_ns, ts1: t_ns }.
+    pub fn end_tick(&mut self, t_ns: u64) -> Result<(), LinkError> {
+        let message = MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: t_ns.max(1) as i64,
+            ts1: t_ns as i64,
+        });
+        self.send_message(&message)?;
+        Ok(())
+    }
+
+    /// Sends one command. Offboard setpoints are held back while the link is not connected
+    /// or a recovery is pending ([`Sent::Suppressed`]).
+    pub fn send(&mut self, command: &VehicleCommand) -> Result<Sent, LinkError> {
+        if command.is_offboard_setpoint() && self.failsafe_action() != FailsafeAction::Continue {
+            self.stats.suppressed_setpoints += 1;
+            return Ok(Sent::Suppressed);
+        }
+        let target = CommandTarget {
+            system_id: self.config.target_system_id,
+            component_id: self.config.target_component_id,
+            kind: self.autopilot_kind,
+        };
+        let time_boot_ms = (self.now_s.max(0.0) * 1000.0) as u32;
+        let message = command_message(command, &target, time_boot_ms);
+        self.send_message(&message)
+    }
+
+    /// What the mission must do about the link now.
+    pub fn failsafe_action(&self) -> FailsafeAction {
+        match self.status {
+            LinkStatus::Connected if self.recovery_pending => FailsafeAction::HoldThenReenter,
+            LinkStatus::Connected => FailsafeAction::Continue,
+            LinkStatus::Connecting | LinkStatus::Lost { .. } => FailsafeAction::StopSetpoints,
+        }
+    }
+
+    /// After a link loss: commands Hold, a zero velocity setpoint (PX4 needs one streaming
+    /// before it accepts OFFBOARD) and OFFBOARD, then lets setpoints through again.
+    pub fn recover(&mut self) -> Result<(), LinkError> {
+        if self.failsafe_action() != FailsafeAction::HoldThenReenter {
+            return Ok(());
+        }
+        self.recovery_pending = false;
+        tracing::info!("MAVLink link recovered: Hold, then re-entering offboard");
+        self.send(&VehicleCommand::SetHold)?;
+        self.send(&VehicleCommand::VelocityNed {
+            velocity_ned_m_s: Vector3::zeros(),
+            yaw_rad: None,
+        })?;
+        self.send(&VehicleCommand::SetOffboard)?;
+        Ok(())
+    }
+
+    fn empty_update(&self) -> LinkUpdate {
+        LinkUpdate {
+            status: self.status,
+            vehicle_state: None,
+            battery: None,
+            autopilot: None,
+            acks: Vec::new(),
+            messages: 0,
+            malformed: 0,
+        }
+    }
+
+    /// Applies one datagram; returns ts1 of a lockstep barrier (TIMESYNC with tc1 = 0) when
+    /// `lockstep` is set and the datagram held one.
+    fn process(
+        &mut self,
+        incoming: Incoming,
+        update: &mut LinkUpdate,
+        lockstep: Option<u64>,
+    ) -> Option<u64> {
+        if incoming.malformed {
+            self.stats.malformed += 1;
+            update.malformed += 1;
+            return None;
+        }
+        let mut barrier = None;
+        let mut from_autopilot = false;
+        for (header, message) in incoming.messages {
+            if u32::from(self.config.target_system_id) != header.system_id
+                || self.config.target_component_id != header.component_id
+            {
+                self.stats.ignored += 1;
+                continue;
+            }
+            from_autopilot = true;
+            self.stats.messages_received += 1;
+            update.messages += 1;
+            if let MavMessage::TIMESYNC(timesync) = &message {
+                if timesync.tc1 == 0 {
+                    if lockstep.is_some() {
+                        barrier = Some(timesync.ts1.max(0) as u64);
+                    } else {
+                        let reply = MavMessage::TIMESYNC(TIMESYNC_DATA {
+                            tc1: (self.now_s * 1e9) as i64,
+                            ts1: timesync.ts1,
+                        });
+                        if let Err(error) = self.send_message(&reply) {
+                            tracing::warn!(%error, "TIMESYNC reply failed");
+                        }
+                    }
+                }
+                continue;
+            }
+            let applied = self.telemetry.apply(&message, self.now_s);
+            if let Some(status) = applied.heartbeat {
+                self.first_heartbeat_s.get_or_insert(self.now_s);
+                self.last_heartbeat_s = Some(self.now_s);
+                self.autopilot_kind = status.kind;
+                update.autopilot = Some(status);
+            }
+            if matches!(message, MavMessage::LOCAL_POSITION_NED(_)) {
+                self.last_position_s = Some(self.now_s);
+            }
+            if applied.vehicle_state {
+                update.vehicle_state = self.telemetry.vehicle_state(self.now_s);
+            }
+            if applied.battery {
+                update.battery = self.telemetry.battery();
+            }
+            if let Some(ack) = applied.ack {
+                if !ack.result.is_accepted() {
+                    self.stats.commands_denied += 1;
+                    tracing::warn!(command = ack.command_id, result = ?ack.result, "autopilot refused a command");
+                }
+                update.acks.push(ack);
+            }
+        }
+        if from_autopilot {
+            if let (Some(from), Transport::Udp(udp)) = (incoming.from, &mut self.transport) {
+                udp.set_peer(from);
+            }
+        }
+        barrier
+    }
+
+    fn finish_poll(&mut self, now_s: f64, mut update: LinkUpdate) -> LinkUpdate {
+        self.send_heartbeat_if_due(now_s);
+        self.update_status(now_s);
+        update.status = self.status;
+        update
+    }
+
+    fn send_heartbeat_if_due(&mut self, now_s: f64) {
+        let due = self
+            .last_sent_heartbeat_s
+            .is_none_or(|last| now_s - last >= self.config.heartbeat_period_s - 1e-9);
+        if !due {
+            return;
+        }
+        match self.send_message(&companion_heartbeat()) {
+            Ok(Sent::Sent) => self.last_sent_heartbeat_s = Some(now_s),
+            Ok(_) => {}
+            Err(error) => tracing::warn!(%error, "companion HEARTBEAT failed"),
+        }
+    }
+
+    fn update_status(&mut self, now_s: f64) {
+        let Some(last_heartbeat_s) = self.last_heartbeat_s else {
+            return;
+        };
+        let heartbeat_deadline_s = last_heartbeat_s + self.config.heartbeat_timeout_s;
+        let position_since_s = self
+            .last_position_s
+            .or(self.first_heartbeat_s)
+            .unwrap_or(last_heartbeat_s);
+        let position_deadline_s = position_since_s + self.config.telemetry_timeout_s;
+        let expired = [heartbeat_deadline_s, position_deadline_s]
+            .into_iter()
+            .filter(|deadline_s| now_s > *deadline_s)
+            .reduce(f64::min);
+        self.status = match (self.status, expired) {
+            (LinkStatus::Lost { since_s }, Some(_)) => LinkStatus::Lost { since_s },
+            (_, Some(since_s)) => {
+                tracing::warn!(
+                    since_s,
+                    heartbeat_age_s = now_s - last_heartbeat_s,
+                    "MAVLink link lost: stopping offboard setpoints"
+                );
+                LinkStatus::Lost { since_s }
+            }
+            (LinkStatus::Lost { since_s }, None) => {
+                tracing::info!(lost_for_s = now_s - since_s, "MAVLink link back");
+                self.recovery_pending = true;
+                LinkStatus::Connected
+            }
+            (_, None) => LinkStatus::Connected,
+        };
+    }
+
+    fn send_message(&mut self, message: &MavMessage) -> Result<Sent, LinkError> {
+        let header = MavHeader {
+            system_id: u32::from(self.config.system_id),
+            component_id: self.config.component_id,
+            sequence: self.sequence,
+        };
+        self.sequence = self.sequence.wrapping_add(1);
+        if self.transport.send(header, message)? {
+            self.stats.messages_sent += 1;
+            Ok(Sent::Sent)
+        } else {
+            self.stats.unsent_no_peer += 1;
+            Ok(Sent::NoPeer)
+        }
+    }
+}
+
+impl std::fmt::Debug for MavlinkLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MavlinkLink")
+            .field("local_addr", &self.local_addr())
+            .field("status", &self.status)
+            .field("stats", &self.stats)
+            .finish()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mavlink::dialects::common::{MavAutopilot, MavModeFlag, MavState, MavType, HEARTBEAT_DATA};
+    use mavlink::MavlinkVersion;
+    use std::net::UdpSocket;
+
+    /// A hand-rolled autopilot: raw MAVLink 2 datagrams from a plain socket.
+    struct RawAutopilot {
+        socket: UdpSocket,
+        to: SocketAddr,
+        system_id: u32,
+    }
+
+    impl RawAutopilot {
+        fn new(to: SocketAddr, system_id: u32) -> Self {
+            let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+            socket
+                .set_read_timeout(Some(Duration::from_secs(1)))
+                .unwrap();
+            Self {
+                socket,
+                to,
+                system_id,
+            }
+        }
+
+        fn send(&self, message: &MavMessage) {
+            let mut bytes = Vec::new();
+            let header = MavHeader {
+                system_id: self.system_id,
+                component_id: 1,
+                sequence: 0,
+            };
+            mavlink::write_versioned_msg(&mut bytes, MavlinkVersion::V2, header, message).unwrap();
+            self.socket.send_to(&bytes, self.to).unwrap();
+        }
+
+        fn receive(&self) -> Vec<MavMessage> {
+            let mut buffer = [0u8; 2048];
+            let (length, _) = self.socket.recv_from(&mut buffer).unwrap();
+            super::super::connection::decode_datagram(&buffer[..length])
+                .into_iter()
+                .map(|(_, message)| message)
+                .collect()
+        }
+    }
+
+    fn px4_heartbeat() -> MavMessage {
+        MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            custom_mode: 6 << 16,
+            mavtype: MavType::MAV_TYPE_QUADROTOR,
+            autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+            base_mode: MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+            system_status: MavState::MAV_STATE_ACTIVE,
+            mavlink_version: 3,
+        })
+    }
+
+    fn poll_until(link: &mut MavlinkLink, now_s: f64, done: impl Fn(&MavlinkLink) -> bool) {
+        let deadline = Instant::now() + Duration::from_secs(1);
+        while !done(link) {
+            assert!(Instant::now() < deadline, "timed out: {link:?}");
+            link.poll(now_s);
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    #[test]
+    fn link_answers_timesync_requests_and_sends_its_heartbeat() {
+        let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+        assert_eq!(link.status(), LinkStatus::Connecting);
+        assert_eq!(link.failsafe_action(), FailsafeAction::StopSetpoints);
+        let autopilot = RawAutopilot::new(link.local_addr().unwrap(), 1);
+        autopilot.send(&px4_heartbeat());
+        poll_until(&mut link, 2.0, |link| {
+            link.telemetry().autopilot().is_some()
+        });
+        // The companion's heartbeat goes to the address the autopilot spoke from.
+        let MavMessage::HEARTBEAT(heartbeat) = &autopilot.receive()[0] else {
+            panic!("expected the companion's HEARTBEAT first");
+        };
+        assert_eq!(heartbeat.mavtype, MavType::MAV_TYPE_ONBOARD_CONTROLLER);
+        assert_eq!(heartbeat.autopilot, MavAutopilot::MAV_AUTOPILOT_INVALID);
+        autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: 0, ts1: 777 }));
+        poll_until(&mut link, 2.5, |link| link.stats().messages_received == 2);
+        let replies = autopilot.receive();
+        assert_eq!(
+            replies,
+            vec![MavMessage::TIMESYNC(TIMESYNC_DATA {
+                tc1: 2_500_000_000,
+                ts1: 777
+            })]
+        );
+    }
+
+    #[test]
+    fn telemetry_from_other_systems_is_ignored() {
+        let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+        let stranger = RawAutopilot::new(link.local_addr().unwrap(), 42);
+        stranger.send(&px4_heartbeat());
+        poll_until(&mut link, 0.0, |link| link.stats().ignored == 1);
+        assert!(link.telemetry().autopilot().is_none());
+        assert_eq!(link.status(), LinkStatus::Connecting);
+        assert_eq!(link.stats().unsent_no_peer, 1);
+    }
+
+    #[test]
+    fn lockstep_without_an_autopilot_times_out_with_a_named_error() {
+        let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+        let error = link
+            .poll_lockstep(20_000_000, Duration::from_millis(50))
+            .unwrap_err();
+        assert!(
+            matches!(
+                error,
+                LinkError::LockstepTimeout {
+                    t_ns: 20_000_000,
+                    ..
+                }
+            ),
+            "{error}"
+        );
+        assert!(error.to_string().contains("no TIMESYNC"));
+    }
+
+    #[test]
+    fn lockstep_barrier_from_the_future_is_an_error() {
+        let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+        let autopilot = RawAutopilot::new(link.local_addr().unwrap(), 1);
+        autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: 0, ts1: 10 }));
+        autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: 0, ts1: 30 }));
+        let error = link.poll_lockstep(20, Duration::from_secs(1)).unwrap_err();
+        assert!(matches!(
+            error,
+            LinkError::LockstepOutOfStep {
+                expected_ns: 20,
+                got_ns: 30
+            }
+        ));
+    }
+
+    #[test]
+    fn garbage_over_udp_is_counted_not_fatal() {
+        let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+        let vandal = UdpSocket::bind("127.0.0.1:0").unwrap();
+        for length in [1usize, 7, 12, 280, 1500, 65_000] {
+            let datagram: Vec<u8> = (0..length).map(|i| (i * 31 % 256) as u8 | 0x01).collect();
+            vandal
+                .send_to(&datagram, link.local_addr().unwrap())
+                .unwrap();
+        }
+        poll_until(&mut link, 0.0, |link| link.stats().malformed == 6);
+        assert_eq!(link.stats().messages_received, 0);
+    }
+}

@@ -1,0 +1,1063 @@
+//! MAVLink ⇄ runtime types, without I/O.
+//!
+//! Inbound: ATTITUDE, LOCAL_POSITION_NED, DISTANCE_SENSOR and EXTENDED_SYS_STATE become a
+//! [`VehicleState`]; BATTERY_STATUS / SYS_STATUS become [`BatteryTelemetry`]; HEARTBEAT becomes
+//! an [`AutopilotStatus`]; COMMAND_ACK becomes a [`CommandAck`]. [`TelemetryState`] accumulates
+//! them, because one MAVLink message carries only part of what the runtime needs.
+//!
+//! Acceleration comes from differencing LOCAL_POSITION_NED velocities over the autopilot's own
+//! `time_boot_ms`, not from HIGHRES_IMU: HIGHRES_IMU is body-frame specific force (gravity
+//! included) that would need the attitude to rotate and de-gravitate, and PX4 does not stream it
+//! by default on the onboard link; the velocity difference is already NED and comes with every
+//! position message.
+//!
+//! Outbound: [`VehicleCommand`] becomes SET_POSITION_TARGET_LOCAL_NED, COMMAND_LONG or
+//! LANDING_TARGET ([`command_message`]); [`SetpointSequencer`] turns the landing logic's
+//! [`LandingSetpoint`] into commands.
+//!
+//! PX4 custom modes (`src/modules/commander/px4_custom_mode.h`): `custom_mode` is a union whose
+//! bytes 2 and 3 are `main_mode` and `sub_mode`, i.e. `custom_mode = sub << 24 | main << 16`.
+//! Main modes: MANUAL 1, ALTCTL 2, POSCTL 3, AUTO 4, ACRO 5, OFFBOARD 6, STABILIZED 7.
+//! AUTO sub modes: READY 1, TAKEOFF 2, LOITER 3, MISSION 4, RTL 5, LAND 6, FOLLOW_TARGET 8,
+//! PRECLAND 9. So OFFBOARD = 0x0006_0000, POSCTL = 0x0003_0000, AUTO.TAKEOFF = 0x0204_0000,
+//! AUTO.LOITER = 0x0304_0000, AUTO.LAND = 0x0604_0000.
+//! ArduPilot copter modes (`ArduCopter/mode.h`) are plain numbers: LOITER 5, GUIDED 4, LAND 9.
+
+use crate::telemetry::BatteryTelemetry;
+use crate::topics::{LandingSetpoint, VehicleState};
+use algorithms::control::landing::LandingMode;
+use algorithms::estimation::projection::Attitude;
+use mavlink::dialects::common::{
+    MavAutopilot, MavCmd, MavFrame, MavLandedState, MavMessage, MavModeFlag, MavResult,
+    MavSensorOrientation, MavState, MavType, PositionTargetTypemask, ATTITUDE_DATA,
+    BATTERY_STATUS_DATA, COMMAND_LONG_DATA, DISTANCE_SENSOR_DATA, HEARTBEAT_DATA,
+    LANDING_TARGET_DATA, LOCAL_POSITION_NED_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA,
+    SYS_STATUS_DATA,
+};
+use nalgebra::Vector3;
+
+/// PX4 main modes (px4_custom_mode.h `PX4_CUSTOM_MAIN_MODE_*`).
+pub const PX4_MAIN_MODE_POSCTL: u8 = 3;
+pub const PX4_MAIN_MODE_AUTO: u8 = 4;
+pub const PX4_MAIN_MODE_OFFBOARD: u8 = 6;
+/// PX4 AUTO sub modes (px4_custom_mode.h `PX4_CUSTOM_SUB_MODE_AUTO_*`).
+pub const PX4_AUTO_SUB_MODE_TAKEOFF: u8 = 2;
+pub const PX4_AUTO_SUB_MODE_LOITER: u8 = 3;
+pub const PX4_AUTO_SUB_MODE_LAND: u8 = 6;
+/// ArduCopter flight mode numbers.
+pub const ARDUCOPTER_MODE_GUIDED: u32 = 4;
+pub const ARDUCOPTER_MODE_LOITER: u32 = 5;
+pub const ARDUCOPTER_MODE_LAND: u32 = 9;
+
+/// MAV_COMP_ID_ONBOARD_COMPUTER: the companion's component id.
+pub const ONBOARD_COMPUTER_COMPONENT_ID: u8 = 191;
+/// The value of an unused or unmeasured uint16 MAVLink field.
+const UINT16_UNKNOWN: u16 = u16::MAX;
+/// BATTERY_STATUS cell marker "more cells in voltages_ext" (and "cell 0 overflowed").
+const UINT16_CONTINUED: u16 = u16::MAX - 1;
+/// A rangefinder reading older than this no longer says where the pad is.
+pub const RANGEFINDER_STALE_S: f64 = 0.5;
+/// Velocity samples further apart than this are not differenced (a gap, not a rate).
+const MAX_ACCELERATION_DT_S: f64 = 0.5;
+
+/// `custom_mode` for a PX4 main mode and sub mode.
+pub fn px4_custom_mode(main_mode: u8, sub_mode: u8) -> u32 {
+    (u32::from(sub_mode) << 24) | (u32::from(main_mode) << 16)
+}
+
+/// `(main_mode, sub_mode)` of a PX4 `custom_mode`.
+pub fn px4_mode_parts(custom_mode: u32) -> (u8, u8) {
+    (
+        ((custom_mode >> 16) & 0xff) as u8,
+        ((custom_mode >> 24) & 0xff) as u8,
+    )
+}
+
+/// Which autopilot firmware speaks, from HEARTBEAT.autopilot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AutopilotKind {
+    Px4,
+    ArduPilot,
+    /// Another MAV_AUTOPILOT value; its custom modes are not decoded.
+    Other(u32),
+}
+
+/// The autopilot's flight mode, in the runtime's words.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AutopilotMode {
+    /// PX4 OFFBOARD or ArduPilot GUIDED: the companion's setpoints fly the vehicle.
+    Offboard,
+    /// PX4 AUTO.LAND or ArduPilot LAND.
+    Land,
+    /// PX4 AUTO.TAKEOFF.
+    Takeoff,
+    /// PX4 AUTO.LOITER or ArduPilot LOITER: holds position.
+    Hold,
+    /// PX4 POSCTL: the pilot flies.
+    Position,
+    /// Any other mode; the raw `custom_mode` says which.
+    Other { custom_mode: u32 },
+}
+
+/// What one HEARTBEAT says about the autopilot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AutopilotStatus {
+    pub kind: AutopilotKind,
+    pub mode: AutopilotMode,
+    pub armed: bool,
+    pub custom_mode: u32,
+    /// MAV_STATE as a number (3 standby, 4 active, 5 critical, 6 emergency).
+    pub system_status: u32,
+}
+
+/// Decodes an autopilot's HEARTBEAT; `None` for heartbeats of things that are not autopilots
+/// (MAV_AUTOPILOT_INVALID: ground stations, cameras, other companions).
+pub fn decode_heartbeat(heartbeat: &HEARTBEAT_DATA) -> Option<AutopilotStatus> {
+    let kind = match heartbeat.autopilot {
+        MavAutopilot::MAV_AUTOPILOT_INVALID => return None,
+        MavAutopilot::MAV_AUTOPILOT_PX4 => AutopilotKind::Px4,
+        MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA => AutopilotKind::ArduPilot,
+        other => AutopilotKind::Other(other as u32),
+    };
+    let custom_mode = heartbeat.custom_mode;
+    let custom = heartbeat
+        .base_mode
+        .contains(MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED);
+    let mode = if custom {
+        decode_custom_mode(kind, custom_mode)
+    } else {
+        AutopilotMode::Other { custom_mode }
+    };
+    Some(AutopilotStatus {
+        kind,
+        mode,
+        armed: heartbeat
+            .base_mode
+            .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED),
+        custom_mode,
+        system_status: heartbeat.system_status as u32,
+    })
+}
+
+/// The runtime's name for an autopilot's `custom_mode`.
+pub fn decode_custom_mode(kind: AutopilotKind, custom_mode: u32) -> AutopilotMode {
+    match kind {
+        AutopilotKind::Px4 => match px4_mode_parts(custom_mode) {
+            (PX4_MAIN_MODE_OFFBOARD, _) => AutopilotMode::Offboard,
+            (PX4_MAIN_MODE_POSCTL, _) => AutopilotMode::Position,
+            (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LAND) => AutopilotMode::Land,
+            (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_TAKEOFF) => AutopilotMode::Takeoff,
+            (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LOITER) => AutopilotMode::Hold,
+            _ => AutopilotMode::Other { custom_mode },
+        },
+        AutopilotKind::ArduPilot => match custom_mode {
+            ARDUCOPTER_MODE_GUIDED => AutopilotMode::Offboard,
+            ARDUCOPTER_MODE_LAND => AutopilotMode::Land,
+            ARDUCOPTER_MODE_LOITER => AutopilotMode::Hold,
+            _ => AutopilotMode::Other { custom_mode },
+        },
+        AutopilotKind::Other(_) => AutopilotMode::Other { custom_mode },
+    }
+}
+
+/// The pack voltage from BATTERY_STATUS.voltages (mV per cell). UINT16_MAX marks an unused cell.
+/// UINT16_MAX−1 in cell 0 is the spec's overflow form (cell 0 = 65534 mV, cell 1 = the rest),
+/// which summing handles. UINT16_MAX−1 in the last cell means "more cells in voltages_ext";
+/// the 0.21 common dialect here carries no `voltages_ext`, so such a pack's sum would be short:
+/// `None`, and SYS_STATUS's voltage stands in.
+pub fn pack_voltage_from_cells(cells_mv: &[u16; 10]) -> Option<f64> {
+    if cells_mv[9] == UINT16_CONTINUED {
+        return None;
+    }
+    let mut total_mv = 0u32;
+    let mut any = false;
+    for &cell in cells_mv {
+        if cell == UINT16_UNKNOWN {
+            continue;
+        }
+        total_mv += u32::from(cell);
+        any = true;
+    }
+    any.then_some(f64::from(total_mv) / 1000.0)
+}
+
+/// BATTERY_STATUS → telemetry. `current_battery` −1, `current_consumed` −1 and
+/// `battery_remaining` −1 mean "not measured".
+pub fn battery_from_battery_status(status: &BATTERY_STATUS_DATA, time_s: f64) -> BatteryTelemetry {
+    BatteryTelemetry {
+        time_s,
+        voltage_v: pack_voltage_from_cells(&status.voltages),
+        current_a: current_from_centiamps(status.current_battery),
+        consumed_mah: (status.current_consumed >= 0).then_some(f64::from(status.current_consumed)),
+        remaining_fraction: remaining_from_percent(status.battery_remaining),
+    }
+}
+
+/// SYS_STATUS → telemetry. `voltage_battery` UINT16_MAX, `current_battery` −1 and
+/// `battery_remaining` −1 mean "not measured"; SYS_STATUS has no consumed charge.
+pub fn battery_from_sys_status(status: &SYS_STATUS_DATA, time_s: f64) -> BatteryTelemetry {
+    BatteryTelemetry {
+        time_s,
+        voltage_v: (status.voltage_battery != UINT16_UNKNOWN)
+            .then_some(f64::from(status.voltage_battery) / 1000.0),
+        current_a: current_from_centiamps(status.current_battery),
+        consumed_mah: None,
+        remaining_fraction: remaining_from_percent(status.battery_remaining),
+    }
+}
+
+fn current_from_centiamps(current_ca: i16) -> Option<f64> {
+    // −1 is the sentinel; any other negative value is a charging current.
+    (current_ca != -1).then_some(f64::from(current_ca) / 100.0)
+}
+
+fn remaining_from_percent(remaining_percent: i8) -> Option<f64> {
+    (0..=100)
+        .contains(&remaining_percent)
+        .then_some(f64::from(remaining_percent) / 100.0)
+}
+
+/// Height above the surface under the vehicle from a downward (PITCH_270) rangefinder, tilt
+/// corrected (the beam runs along the body's down axis); `None` for other orientations and
+/// readings outside the sensor's own [min, max] range (PX4 reports out-of-range as max+1 or
+/// UINT16_MAX).
+pub fn rangefinder_height_m(sensor: &DISTANCE_SENSOR_DATA, attitude: &Attitude) -> Option<f64> {
+    if sensor.orientation != MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270 {
+        return None;
+    }
+    let distance_cm = sensor.current_distance;
+    if distance_cm == UINT16_UNKNOWN
+        || distance_cm < sensor.min_distance
+        || distance_cm > sensor.max_distance
+    {
+        return None;
+    }
+    let tilt_cos = attitude.roll_rad.cos() * attitude.pitch_rad.cos();
+    if tilt_cos <= 0.0 {
+        return None;
+    }
+    Some(f64::from(distance_cm) / 100.0 * tilt_cos)
+}
+
+/// EXTENDED_SYS_STATE.landed_state → on the ground; `None` when the autopilot does not know.
+pub fn landed_from_state(state: MavLandedState) -> Option<bool> {
+    match state {
+        MavLandedState::MAV_LANDED_STATE_UNDEFINED => None,
+        MavLandedState::MAV_LANDED_STATE_ON_GROUND => Some(true),
+        _ => Some(false),
+    }
+}
+
+/// MAV_RESULT of a COMMAND_ACK.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AckResult {
+    Accepted,
+    InProgress,
+    TemporarilyRejected,
+    Denied,
+    Unsupported,
+    Failed,
+    /// Any other MAV_RESULT, by number.
+    Other(u32),
+}
+
+impl AckResult {
+    pub fn from_mav(result: MavResult) -> Self {
+        match result {
+            MavResult::MAV_RESULT_ACCEPTED => Self::Accepted,
+            MavResult::MAV_RESULT_IN_PROGRESS => Self::InProgress,
+            MavResult::MAV_RESULT_TEMPORARILY_REJECTED => Self::TemporarilyRejected,
+            MavResult::MAV_RESULT_DENIED => Self::Denied,
+            MavResult::MAV_RESULT_UNSUPPORTED => Self::Unsupported,
+            MavResult::MAV_RESULT_FAILED => Self::Failed,
+            other => Self::Other(other as u32),
+        }
+    }
+
+    pub fn is_accepted(self) -> bool {
+        matches!(self, Self::Accepted | Self::InProgress)
+    }
+}
+
+/// The autopilot's answer to one COMMAND_LONG.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CommandAck {
+    /// MAV_CMD id (400 arm/disarm, 22 takeoff, 21 land, 176 set mode).
+    pub command_id: u32,
+    pub result: AckResult,
+}
+
+/// What one message changed in a [`TelemetryState`].
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Applied {
+    pub vehicle_state: bool,
+    pub battery: bool,
+    pub heartbeat: Option<AutopilotStatus>,
+    pub ack: Option<CommandAck>,
+}
+
+/// The latest of everything the autopilot reported, assembled into runtime types.
+#[derive(Debug, Clone, Default)]
+pub struct TelemetryState {
+    attitude: Option<Attitude>,
+    position_ned_m: Option<Vector3<f64>>,
+    velocity_ned_m_s: Option<Vector3<f64>>,
+    acceleration_ned_m_s2: Vector3<f64>,
+    last_position_boot_ms: Option<u32>,
+    /// Tilt-corrected rangefinder height, with the runtime time it arrived.
+    rangefinder: Option<(f64, f64)>,
+    landed: bool,
+    battery: Option<BatteryTelemetry>,
+    has_battery_status: bool,
+    sys_status_voltage_v: Option<f64>,
+    autopilot: Option<AutopilotStatus>,
+}
+
+impl TelemetryState {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Folds one message from the autopilot in; `now_s` is the runtime's clock.
+    pub fn apply(&mut self, message: &MavMessage, now_s: f64) -> Applied {
+        let mut applied = Applied::default();
+        match message {
+            MavMessage::HEARTBEAT(heartbeat) => {
+                if let Some(status) = decode_heartbeat(heartbeat) {
+                    self.autopilot = Some(status);
+                    applied.heartbeat = Some(status);
+                }
+            }
+            MavMessage::ATTITUDE(attitude) => {
+                self.attitude = Some(attitude_from(attitude));
+                applied.vehicle_state = self.position_ned_m.is_some();
+            }
+            MavMessage::LOCAL_POSITION_NED(position) => {
+                self.apply_position(position);
+                applied.vehicle_state = self.attitude.is_some();
+            }
+            MavMessage::DISTANCE_SENSOR(sensor) => {
+                let attitude = self.attitude.unwrap_or(Attitude::new(0.0, 0.0, 0.0));
+                if sensor.orientation == MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270 {
+                    // An out-of-range reading clears the old one: the pad may have gone.
+                    self.rangefinder =
+                        rangefinder_height_m(sensor, &attitude).map(|height| (height, now_s));
+                    applied.vehicle_state =
+                        self.attitude.is_some() && self.position_ned_m.is_some();
+                }
+            }
+            MavMessage::EXTENDED_SYS_STATE(state) => {
+                if let Some(landed) = landed_from_state(state.landed_state) {
+                    applied.vehicle_state = landed != self.landed
+                        && self.attitude.is_some()
+                        && self.position_ned_m.is_some();
+                    self.landed = landed;
+                }
+            }
+            MavMessage::BATTERY_STATUS(status) => {
+                let mut battery = battery_from_battery_status(status, now_s);
+                if battery.voltage_v.is_none() {
+                    battery.voltage_v = self.sys_status_voltage_v;
+                }
+                self.has_battery_status = true;
+                self.battery = Some(battery);
+                applied.battery = true;
+            }
+            MavMessage::SYS_STATUS(status) => {
+                let battery = battery_from_sys_status(status, now_s);
+                self.sys_status_voltage_v = battery.voltage_v;
+                // BATTERY_STATUS is richer (consumed charge); SYS_STATUS speaks only without it.
+                if !self.has_battery_status {
+                    self.battery = Some(battery);
+                    applied.battery = true;
+                }
+            }
+            MavMessage::COMMAND_ACK(ack) => {
+                applied.ack = Some(CommandAck {
+                    command_id: ack.command as u32,
+                    result: AckResult::from_mav(ack.result),
+                });
+            }
+            _ => {}
+        }
+        applied
+    }
+
+    fn apply_position(&mut self, position: &LOCAL_POSITION_NED_DATA) {
+        let velocity = Vector3::new(
+            f64::from(position.vx),
+            f64::from(position.vy),
+            f64::from(position.vz),
+        );
+        if let (Some(previous), Some(previous_ms)) =
+            (self.velocity_ned_m_s, self.last_position_boot_ms)
+        {
+            let dt_s = f64::from(position.time_boot_ms.wrapping_sub(previous_ms)) / 1000.0;
+            if dt_s > 0.0 && dt_s <= MAX_ACCELERATION_DT_S {
+                self.acceleration_ned_m_s2 = (velocity - previous) / dt_s;
+            }
+        }
+        self.velocity_ned_m_s = Some(velocity);
+        self.last_position_boot_ms = Some(position.time_boot_ms);
+        self.position_ned_m = Some(Vector3::new(
+            f64::from(position.x),
+            f64::from(position.y),
+            f64::from(position.z),
+        ));
+    }
+
+    /// The vehicle as last reported, once both attitude and position have come in. Height is
+    /// the rangefinder's when it has a reading younger than [`RANGEFINDER_STALE_S`], else −z
+    /// (height above the home point).
+    pub fn vehicle_state(&self, now_s: f64) -> Option<VehicleState> {
+        let attitude = self.attitude?;
+        let position = self.position_ned_m?;
+        let height_above_pad_m = match self.rangefinder {
+            Some((height, at_s)) if now_s - at_s <= RANGEFINDER_STALE_S => height,
+            _ => -position.z,
+        };
+        Some(VehicleState {
+            attitude,
+            velocity_ned_m_s: self.velocity_ned_m_s.unwrap_or_else(Vector3::zeros),
+            acceleration_ned_m_s2: self.acceleration_ned_m_s2,
+            height_above_pad_m,
+            landed: self.landed,
+        })
+    }
+
+    /// Local NED position, as last reported.
+    pub fn position_ned_m(&self) -> Option<Vector3<f64>> {
+        self.position_ned_m
+    }
+
+    pub fn battery(&self) -> Option<BatteryTelemetry> {
+        self.battery
+    }
+
+    pub fn autopilot(&self) -> Option<AutopilotStatus> {
+        self.autopilot
+    }
+}
+
+fn attitude_from(attitude: &ATTITUDE_DATA) -> Attitude {
+    Attitude::new(
+        f64::from(attitude.roll),
+        f64::from(attitude.pitch),
+        f64::from(attitude.yaw),
+    )
+}
+
+/// What the runtime asks of the autopilot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum VehicleCommand {
+    Arm,
+    Disarm,
+    /// Take off to this height above the take-off point.
+    Takeoff {
+        altitude_m: f64,
+    },
+    Land,
+    /// PX4 OFFBOARD (ArduPilot GUIDED).
+    SetOffboard,
+    /// PX4 AUTO.LOITER (ArduPilot LOITER).
+    SetHold,
+    /// An offboard velocity setpoint, NED, with an optional yaw.
+    VelocityNed {
+        velocity_ned_m_s: Vector3<f64>,
+        yaw_rad: Option<f64>,
+    },
+    /// Where the pad is, as angles off the camera's (body FRD) axis, for the autopilot's own
+    /// precision landing.
+    LandingTarget {
+        angle_x_rad: f64,
+        angle_y_rad: f64,
+        distance_m: f64,
+        size_x_rad: f64,
+        size_y_rad: f64,
+        time_usec: u64,
+    },
+}
+
+impl VehicleCommand {
+    /// Whether this is a streamed offboard setpoint (stopped while the link is lost).
+    pub fn is_offboard_setpoint(&self) -> bool {
+        matches!(self, Self::VelocityNed { .. })
+    }
+
+    /// The MAV_CMD id a COMMAND_ACK will answer with, for commands sent as COMMAND_LONG.
+    pub fn command_id(&self) -> Option<u32> {
+        match self {
+            Self::Arm | Self::Disarm => Some(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM as u32),
+            Self::Takeoff { .. } => Some(MavCmd::MAV_CMD_NAV_TAKEOFF as u32),
+            Self::Land => Some(MavCmd::MAV_CMD_NAV_LAND as u32),
+            Self::SetOffboard | Self::SetHold => Some(MavCmd::MAV_CMD_DO_SET_MODE as u32),
+            Self::VelocityNed { .. } | Self::LandingTarget { .. } => None,
+        }
+    }
+}
+
+/// Who the commands go to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CommandTarget {
+    pub system_id: u8,
+    pub component_id: u8,
+    /// Decides how modes are encoded; PX4 until a heartbeat says otherwise.
+    pub kind: AutopilotKind,
+}
+
+/// SET_POSITION_TARGET_LOCAL_NED type_mask for a velocity-only setpoint: position,
+/// acceleration and yaw rate ignored; yaw ignored unless given.
+pub fn velocity_type_mask(with_yaw: bool) -> PositionTargetTypemask {
+    let mut mask = PositionTargetTypemask::POSITION_TARGET_TYPEMASK_X_IGNORE
+        | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_Y_IGNORE
+        | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_Z_IGNORE
+        | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_AX_IGNORE
+        | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_AY_IGNORE
+        | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_AZ_IGNORE
+        | PositionTargetTypemask::POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE;
+    if !with_yaw {
+        mask |= PositionTargetTypemask::POSITION_TARGET_TYPEMASK_YAW_IGNORE;
+    }
+    mask
+}
+
+/// The MAVLink message for a command. `time_boot_ms` is the companion's own clock.
+pub fn command_message(
+    command: &VehicleCommand,
+    target: &CommandTarget,
+    time_boot_ms: u32,
+) -> MavMessage {
+    let long = |command: MavCmd, params: [f32; 7]| {
+        MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+            param1: params[0],
+            param2: params[1],
+            param3: params[2],
+            param4: params[3],
+            param5: params[4],
+            param6: params[5],
+            param7: params[6],
+            command,
+            target_system: target.system_id,
+            target_component: target.component_id,
+            confirmation: 0,
+        })
+    };
+    let custom_mode_flag = f32::from(MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED.bits());
+    let set_mode = |px4_main: u8, px4_sub: u8, ardupilot_mode: u32| {
+        let (param2, param3) = match target.kind {
+            AutopilotKind::ArduPilot => (ardupilot_mode as f32, 0.0),
+            _ => (f32::from(px4_main), f32::from(px4_sub)),
+        };
+        long(
+            MavCmd::MAV_CMD_DO_SET_MODE,
+            [custom_mode_flag, param2, param3, 0.0, 0.0, 0.0, 0.0],
+        )
+    };
+    match *command {
+        VehicleCommand::Arm => long(
+            MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        ),
+        VehicleCommand::Disarm => long(
+            MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+            [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        ),
+        // NaN: keep current yaw and horizontal position.
+        VehicleCommand::Takeoff { altitude_m } => long(
+            MavCmd::MAV_CMD_NAV_TAKEOFF,
+            [
+                0.0,
+                0.0,
+                0.0,
+                f32::NAN,
+                f32::NAN,
+                f32::NAN,
+                altitude_m as f32,
+            ],
+        ),
+        VehicleCommand::Land => long(
+            MavCmd::MAV_CMD_NAV_LAND,
+            [0.0, 0.0, 0.0, f32::NAN, f32::NAN, f32::NAN, f32::NAN],
+        ),
+        VehicleCommand::SetOffboard => set_mode(PX4_MAIN_MODE_OFFBOARD, 0, ARDUCOPTER_MODE_GUIDED),
+        VehicleCommand::SetHold => set_mode(
+            PX4_MAIN_MODE_AUTO,
+            PX4_AUTO_SUB_MODE_LOITER,
+            ARDUCOPTER_MODE_LOITER,
+        ),
+        VehicleCommand::VelocityNed {
+            velocity_ned_m_s,
+            yaw_rad,
+        } => MavMessage::SET_POSITION_TARGET_LOCAL_NED(SET_POSITION_TARGET_LOCAL_NED_DATA {
+            time_boot_ms,
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+            vx: velocity_ned_m_s.x as f32,
+            vy: velocity_ned_m_s.y as f32,
+            vz: velocity_ned_m_s.z as f32,
+            afx: 0.0,
+            afy: 0.0,
+            afz: 0.0,
+            yaw: yaw_rad.unwrap_or(0.0) as f32,
+            yaw_rate: 0.0,
+            type_mask: velocity_type_mask(yaw_rad.is_some()),
+            target_system: target.system_id,
+            target_component: target.component_id,
+            coordinate_frame: MavFrame::MAV_FRAME_LOCAL_NED,
+        }),
+        VehicleCommand::LandingTarget {
+            angle_x_rad,
+            angle_y_rad,
+            distance_m,
+            size_x_rad,
+            size_y_rad,
+            time_usec,
+        } => MavMessage::LANDING_TARGET(LANDING_TARGET_DATA {
+            time_usec,
+            angle_x: angle_x_rad as f32,
+            angle_y: angle_y_rad as f32,
+            distance: distance_m as f32,
+            size_x: size_x_rad as f32,
+            size_y: size_y_rad as f32,
+            target_num: 0,
+            frame: MavFrame::MAV_FRAME_BODY_FRD,
+        }),
+    }
+}
+
+/// The companion computer's own HEARTBEAT (sent at 1 Hz so the autopilot sees it alive).
+pub fn companion_heartbeat() -> MavMessage {
+    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        custom_mode: 0,
+        mavtype: MavType::MAV_TYPE_ONBOARD_CONTROLLER,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+        base_mode: MavModeFlag::empty(),
+        system_status: MavState::MAV_STATE_ACTIVE,
+        mavlink_version: 3,
+    })
+}
+
+/// Turns the landing logic's setpoints into commands: the velocity setpoint every time (PX4
+/// leaves OFFBOARD when setpoints stop), plus one Land command the first time the landing
+/// logic asks for it (`land_command`, from FinalLanding on) or reports Landed. Repeating Land
+/// would re-trigger the autopilot's land sequence and flood it with COMMAND_ACKs.
+#[derive(Debug, Clone, Default)]
+pub struct SetpointSequencer {
+    land_sent: bool,
+}
+
+impl SetpointSequencer {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn commands_for(&mut self, setpoint: &LandingSetpoint) -> Vec<VehicleCommand> {
+        let mut commands = vec![VehicleCommand::VelocityNed {
+            velocity_ned_m_s: setpoint.velocity_setpoint_ned_m_s,
+            yaw_rad: None,
+        }];
+        let wants_land = setpoint.land_command || setpoint.mode == LandingMode::Landed;
+        if wants_land && !self.land_sent {
+            commands.push(VehicleCommand::Land);
+            self.land_sent = true;
+        }
+        commands
+    }
+
+    /// Forget that Land was sent (a new landing attempt).
+    pub fn reset(&mut self) {
+        self.land_sent = false;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mavlink::dialects::common::{
+        MavBatteryFunction, MavBatteryType, MavDistanceSensor, MavSysStatusSensor,
+        COMMAND_ACK_DATA, EXTENDED_SYS_STATE_DATA,
+    };
+
+    fn heartbeat(
+        autopilot: MavAutopilot,
+        base_mode: MavModeFlag,
+        custom_mode: u32,
+    ) -> HEARTBEAT_DATA {
+        HEARTBEAT_DATA {
+            custom_mode,
+            mavtype: MavType::MAV_TYPE_QUADROTOR,
+            autopilot,
+            base_mode,
+            system_status: MavState::MAV_STATE_ACTIVE,
+            mavlink_version: 3,
+        }
+    }
+
+    #[test]
+    fn px4_custom_modes_match_px4_custom_mode_h() {
+        assert_eq!(px4_custom_mode(PX4_MAIN_MODE_OFFBOARD, 0), 0x0006_0000);
+        assert_eq!(px4_custom_mode(PX4_MAIN_MODE_OFFBOARD, 0), 393_216);
+        assert_eq!(px4_custom_mode(PX4_MAIN_MODE_POSCTL, 0), 0x0003_0000);
+        assert_eq!(
+            px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LAND),
+            0x0604_0000
+        );
+        assert_eq!(
+            px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_TAKEOFF),
+            0x0204_0000
+        );
+        assert_eq!(
+            px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LOITER),
+            0x0304_0000
+        );
+        assert_eq!(px4_mode_parts(0x0604_0000), (4, 6));
+    }
+
+    #[test]
+    fn heartbeat_decodes_px4_and_ardupilot_modes_and_armed() {
+        let custom = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
+        let armed = custom | MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
+        let px4 = |mode| decode_heartbeat(&heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, armed, mode));
+        assert_eq!(px4(0x0006_0000).unwrap().mode, AutopilotMode::Offboard);
+        assert!(px4(0x0006_0000).unwrap().armed);
+        assert_eq!(px4(0x0604_0000).unwrap().mode, AutopilotMode::Land);
+        assert_eq!(px4(0x0204_0000).unwrap().mode, AutopilotMode::Takeoff);
+        assert_eq!(px4(0x0304_0000).unwrap().mode, AutopilotMode::Hold);
+        assert_eq!(px4(0x0003_0000).unwrap().mode, AutopilotMode::Position);
+        assert_eq!(
+            px4(0x0404_0000).unwrap().mode,
+            AutopilotMode::Other {
+                custom_mode: 0x0404_0000
+            }
+        );
+        let disarmed = decode_heartbeat(&heartbeat(
+            MavAutopilot::MAV_AUTOPILOT_PX4,
+            custom,
+            0x0006_0000,
+        ))
+        .unwrap();
+        assert!(!disarmed.armed);
+        let ardu = |mode| {
+            decode_heartbeat(&heartbeat(
+                MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+                custom,
+                mode,
+            ))
+            .unwrap()
+        };
+        assert_eq!(ardu(4).mode, AutopilotMode::Offboard);
+        assert_eq!(ardu(9).mode, AutopilotMode::Land);
+        assert_eq!(ardu(5).mode, AutopilotMode::Hold);
+        assert_eq!(ardu(5).kind, AutopilotKind::ArduPilot);
+        // Without the custom-mode flag the number is not a custom mode.
+        let plain = decode_heartbeat(&heartbeat(
+            MavAutopilot::MAV_AUTOPILOT_PX4,
+            MavModeFlag::empty(),
+            0x0006_0000,
+        ))
+        .unwrap();
+        assert_eq!(
+            plain.mode,
+            AutopilotMode::Other {
+                custom_mode: 0x0006_0000
+            }
+        );
+        // A ground station's heartbeat is not the autopilot's.
+        assert!(
+            decode_heartbeat(&heartbeat(MavAutopilot::MAV_AUTOPILOT_INVALID, custom, 0)).is_none()
+        );
+    }
+
+    fn battery_status(
+        cells: [u16; 10],
+        current_ca: i16,
+        consumed: i32,
+        remaining: i8,
+    ) -> BATTERY_STATUS_DATA {
+        BATTERY_STATUS_DATA {
+            current_consumed: consumed,
+            energy_consumed: -1,
+            temperature: i16::MAX,
+            voltages: cells,
+            current_battery: current_ca,
+            id: 0,
+            battery_function: MavBatteryFunction::MAV_BATTERY_FUNCTION_ALL,
+            mavtype: MavBatteryType::MAV_BATTERY_TYPE_LIPO,
+            battery_remaining: remaining,
+        }
+    }
+
+    #[test]
+    fn battery_status_cells_and_sentinels() {
+        let mut cells = [u16::MAX; 10];
+        cells[..4].copy_from_slice(&[3950; 4]);
+        let telemetry = battery_from_battery_status(&battery_status(cells, -1, -1, -1), 3.0);
+        assert!((telemetry.voltage_v.unwrap() - 15.8).abs() < 1e-12);
+        assert_eq!(telemetry.current_a, None);
+        assert_eq!(telemetry.consumed_mah, None);
+        assert_eq!(telemetry.remaining_fraction, None);
+        assert_eq!(telemetry.time_s, 3.0);
+
+        let measured = battery_from_battery_status(&battery_status(cells, 1234, 420, 80), 0.0);
+        assert_eq!(measured.current_a, Some(12.34));
+        assert_eq!(measured.consumed_mah, Some(420.0));
+        assert_eq!(measured.remaining_fraction, Some(0.8));
+
+        // Overflow form: cell 0 = 65534 mV, cell 1 = the rest.
+        let mut big = [u16::MAX; 10];
+        big[0] = u16::MAX - 1;
+        big[1] = 1_466;
+        assert_eq!(pack_voltage_from_cells(&big), Some(67.0));
+        // More cells in voltages_ext, which this dialect lacks: unknown.
+        let mut many = [3_900u16; 10];
+        many[9] = u16::MAX - 1;
+        assert_eq!(pack_voltage_from_cells(&many), None);
+        assert_eq!(pack_voltage_from_cells(&[u16::MAX; 10]), None);
+    }
+
+    fn sys_status(voltage_mv: u16, current_ca: i16, remaining: i8) -> SYS_STATUS_DATA {
+        SYS_STATUS_DATA {
+            onboard_control_sensors_present: MavSysStatusSensor::empty(),
+            onboard_control_sensors_enabled: MavSysStatusSensor::empty(),
+            onboard_control_sensors_health: MavSysStatusSensor::empty(),
+            load: 0,
+            voltage_battery: voltage_mv,
+            current_battery: current_ca,
+            drop_rate_comm: 0,
+            errors_comm: 0,
+            errors_count1: 0,
+            errors_count2: 0,
+            errors_count3: 0,
+            errors_count4: 0,
+            battery_remaining: remaining,
+        }
+    }
+
+    #[test]
+    fn sys_status_sentinels() {
+        let unknown = battery_from_sys_status(&sys_status(u16::MAX, -1, -1), 1.0);
+        assert_eq!(unknown.voltage_v, None);
+        assert_eq!(unknown.current_a, None);
+        assert_eq!(unknown.remaining_fraction, None);
+        let known = battery_from_sys_status(&sys_status(15_800, 2_050, 55), 1.0);
+        assert_eq!(known.voltage_v, Some(15.8));
+        assert_eq!(known.current_a, Some(20.5));
+        assert_eq!(known.remaining_fraction, Some(0.55));
+        assert_eq!(known.consumed_mah, None);
+    }
+
+    #[test]
+    fn battery_status_wins_over_sys_status_and_borrows_its_voltage() {
+        let mut state = TelemetryState::new();
+        state.apply(&MavMessage::SYS_STATUS(sys_status(16_000, 1_000, 90)), 1.0);
+        assert_eq!(state.battery().unwrap().voltage_v, Some(16.0));
+        let applied = state.apply(
+            &MavMessage::BATTERY_STATUS(battery_status([u16::MAX; 10], 900, 100, 89)),
+            2.0,
+        );
+        assert!(applied.battery);
+        let battery = state.battery().unwrap();
+        assert_eq!(battery.voltage_v, Some(16.0));
+        assert_eq!(battery.consumed_mah, Some(100.0));
+        let later = state.apply(&MavMessage::SYS_STATUS(sys_status(15_000, 1_000, 80)), 3.0);
+        assert!(!later.battery);
+        assert_eq!(state.battery().unwrap().time_s, 2.0);
+    }
+
+    fn distance(current_cm: u16, orientation: MavSensorOrientation) -> DISTANCE_SENSOR_DATA {
+        DISTANCE_SENSOR_DATA {
+            time_boot_ms: 0,
+            min_distance: 10,
+            max_distance: 4_000,
+            current_distance: current_cm,
+            mavtype: MavDistanceSensor::MAV_DISTANCE_SENSOR_LASER,
+            id: 0,
+            orientation,
+            covariance: 0,
+        }
+    }
+
+    #[test]
+    fn vehicle_state_from_attitude_position_rangefinder_and_landed() {
+        let mut state = TelemetryState::new();
+        assert!(state.vehicle_state(0.0).is_none());
+        state.apply(
+            &MavMessage::ATTITUDE(ATTITUDE_DATA {
+                time_boot_ms: 0,
+                roll: 0.1,
+                pitch: -0.2,
+                yaw: 1.5,
+                rollspeed: 0.0,
+                pitchspeed: 0.0,
+                yawspeed: 0.0,
+            }),
+            0.0,
+        );
+        let position = |ms, vx: f32| {
+            MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+                time_boot_ms: ms,
+                x: 1.0,
+                y: 2.0,
+                z: -5.0,
+                vx,
+                vy: 0.0,
+                vz: 0.5,
+            })
+        };
+        assert!(state.apply(&position(1_000, 1.0), 0.0).vehicle_state);
+        state.apply(&position(1_020, 1.2), 0.02);
+        let vehicle = state.vehicle_state(0.02).unwrap();
+        assert_eq!(vehicle.attitude.roll_rad, f64::from(0.1f32));
+        assert_eq!(vehicle.attitude.pitch_rad, f64::from(-0.2f32));
+        assert_eq!(vehicle.attitude.yaw_rad, f64::from(1.5f32));
+        assert!((vehicle.acceleration_ned_m_s2.x - 10.0).abs() < 1e-4);
+        assert_eq!(vehicle.velocity_ned_m_s.z, 0.5);
+        // No rangefinder yet: −z.
+        assert_eq!(vehicle.height_above_pad_m, 5.0);
+        state.apply(
+            &MavMessage::DISTANCE_SENSOR(distance(
+                400,
+                MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270,
+            )),
+            0.02,
+        );
+        let expected = 4.0 * f64::from(0.1f32).cos() * f64::from(-0.2f32).cos();
+        assert!((state.vehicle_state(0.02).unwrap().height_above_pad_m - expected).abs() < 1e-12);
+        // Stale rangefinder: back to −z.
+        assert_eq!(state.vehicle_state(1.0).unwrap().height_above_pad_m, 5.0);
+        // A forward-looking sensor is not the downward one.
+        state.apply(
+            &MavMessage::DISTANCE_SENSOR(distance(
+                100,
+                MavSensorOrientation::MAV_SENSOR_ROTATION_NONE,
+            )),
+            1.0,
+        );
+        assert_eq!(state.vehicle_state(1.0).unwrap().height_above_pad_m, 5.0);
+        // Out of range clears the reading.
+        state.apply(
+            &MavMessage::DISTANCE_SENSOR(distance(
+                u16::MAX,
+                MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270,
+            )),
+            1.0,
+        );
+        assert_eq!(state.vehicle_state(1.0).unwrap().height_above_pad_m, 5.0);
+        let landed = |landed_state| {
+            MavMessage::EXTENDED_SYS_STATE(EXTENDED_SYS_STATE_DATA {
+                vtol_state: mavlink::dialects::common::MavVtolState::MAV_VTOL_STATE_MC,
+                landed_state,
+            })
+        };
+        state.apply(&landed(MavLandedState::MAV_LANDED_STATE_ON_GROUND), 1.0);
+        assert!(state.vehicle_state(1.0).unwrap().landed);
+        state.apply(&landed(MavLandedState::MAV_LANDED_STATE_UNDEFINED), 1.0);
+        assert!(state.vehicle_state(1.0).unwrap().landed);
+        state.apply(&landed(MavLandedState::MAV_LANDED_STATE_IN_AIR), 1.0);
+        assert!(!state.vehicle_state(1.0).unwrap().landed);
+    }
+
+    #[test]
+    fn command_ack_is_surfaced() {
+        let mut state = TelemetryState::new();
+        let applied = state.apply(
+            &MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
+                command: MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+                result: MavResult::MAV_RESULT_DENIED,
+            }),
+            0.0,
+        );
+        assert_eq!(
+            applied.ack,
+            Some(CommandAck {
+                command_id: 400,
+                result: AckResult::Denied
+            })
+        );
+    }
+
+    #[test]
+    fn commands_encode_as_px4_expects() {
+        let target = CommandTarget {
+            system_id: 1,
+            component_id: 1,
+            kind: AutopilotKind::Px4,
+        };
+        let velocity = command_message(
+            &VehicleCommand::VelocityNed {
+                velocity_ned_m_s: Vector3::new(1.0, -2.0, 0.5),
+                yaw_rad: None,
+            },
+            &target,
+            7,
+        );
+        let MavMessage::SET_POSITION_TARGET_LOCAL_NED(setpoint) = velocity else {
+            panic!("not a setpoint: {velocity:?}");
+        };
+        // X|Y|Z|AX|AY|AZ|YAW|YAW_RATE ignored = 1+2+4+64+128+256+1024+2048.
+        assert_eq!(setpoint.type_mask.bits(), 3_527);
+        assert_eq!(setpoint.coordinate_frame, MavFrame::MAV_FRAME_LOCAL_NED);
+        assert_eq!((setpoint.vx, setpoint.vy, setpoint.vz), (1.0, -2.0, 0.5));
+        assert_eq!(velocity_type_mask(true).bits(), 3_527 - 1_024);
+
+        let MavMessage::COMMAND_LONG(offboard) =
+            command_message(&VehicleCommand::SetOffboard, &target, 0)
+        else {
+            panic!("not a COMMAND_LONG");
+        };
+        assert_eq!(offboard.command, MavCmd::MAV_CMD_DO_SET_MODE);
+        assert_eq!(
+            (offboard.param1, offboard.param2, offboard.param3),
+            (1.0, 6.0, 0.0)
+        );
+        let MavMessage::COMMAND_LONG(hold) = command_message(&VehicleCommand::SetHold, &target, 0)
+        else {
+            panic!("not a COMMAND_LONG");
+        };
+        assert_eq!((hold.param2, hold.param3), (4.0, 3.0));
+        let ardupilot = CommandTarget {
+            kind: AutopilotKind::ArduPilot,
+            ..target
+        };
+        let MavMessage::COMMAND_LONG(guided) =
+            command_message(&VehicleCommand::SetOffboard, &ardupilot, 0)
+        else {
+            panic!("not a COMMAND_LONG");
+        };
+        assert_eq!(guided.param2, 4.0);
+        let MavMessage::COMMAND_LONG(arm) = command_message(&VehicleCommand::Arm, &target, 0)
+        else {
+            panic!("not a COMMAND_LONG");
+        };
+        assert_eq!(
+            (arm.command, arm.param1),
+            (MavCmd::MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+        );
+        assert_eq!(VehicleCommand::Land.command_id(), Some(21));
+        assert_eq!(
+            VehicleCommand::Takeoff { altitude_m: 3.0 }.command_id(),
+            Some(22)
+        );
+    }
+
+    #[test]
+    fn setpoints_always_land_once() {
+        let mut sequencer = SetpointSequencer::new();
+        let setpoint = |mode, land_command| LandingSetpoint {
+            mode,
+            velocity_setpoint_ned_m_s: Vector3::new(0.5, 0.0, 0.3),
+            land_command,
+        };
+        let descend = sequencer.commands_for(&setpoint(LandingMode::Descend, false));
+        assert_eq!(descend.len(), 1);
+        assert!(descend[0].is_offboard_setpoint());
+        let final_landing = sequencer.commands_for(&setpoint(LandingMode::FinalLanding, true));
+        assert_eq!(final_landing[1], VehicleCommand::Land);
+        let again = sequencer.commands_for(&setpoint(LandingMode::Landed, true));
+        assert_eq!(again.len(), 1);
+        let mut fresh = SetpointSequencer::new();
+        let landed = fresh.commands_for(&setpoint(LandingMode::Landed, false));
+        assert_eq!(landed.last(), Some(&VehicleCommand::Land));
+    }
+}
