@@ -10,6 +10,7 @@ use algorithms::vision::landing_marker::{
 };
 use algorithms::vision::nfold::Roi;
 use serde::Deserialize;
+use std::sync::Arc;
 
 pub const PLUGIN_NAME: &str = "landing_marker";
 
@@ -57,6 +58,9 @@ pub struct LandingMarkerTask {
     roi_half_size_px: f64,
     /// Centre and (if known) size in pixels of the pad in the last frame it was seen in.
     last_seen: Option<([f64; 2], Option<f64>)>,
+    /// The previous frame, to recognise a frozen camera: a live sensor's noise never repeats a
+    /// frame bit for bit.
+    previous_frame: Option<CameraFrame>,
     frames: Option<Subscriber<CameraFrame>>,
     output: Option<Publisher<MarkerObservation>>,
 }
@@ -87,6 +91,7 @@ impl LandingMarkerTask {
             detector,
             roi_half_size_px: params.roi_half_size_px,
             last_seen: None,
+            previous_frame: None,
             frames: None,
             output: None,
         })
@@ -109,6 +114,28 @@ impl Task for LandingMarkerTask {
             return Ok(());
         };
         let frame = &message.value;
+        let frozen = self.previous_frame.as_ref().filter(|previous| {
+            previous.frame_index != frame.frame_index
+                && (Arc::ptr_eq(&previous.image, &frame.image)
+                    || previous.image.data() == frame.image.data())
+        });
+        if let Some(previous) = frozen {
+            let error = format!(
+                "camera frozen: frame {} repeats frame {} exactly",
+                frame.frame_index, previous.frame_index
+            );
+            tracing::warn!(task = ctx.name(), frame = frame.frame_index, %error, "stale camera frame");
+            self.last_seen = None;
+            let published = MarkerObservation {
+                frame_index: frame.frame_index,
+                observation: None,
+                frame_error: Some(error),
+                used_roi: false,
+            };
+            output.publish(message.stamp, published);
+            return Ok(());
+        }
+        self.previous_frame = Some(frame.clone());
         // Search around the last detection first (cheap), the whole frame when that fails.
         let roi =
             self.last_seen
@@ -313,6 +340,57 @@ mod tests {
         let stats = scheduler.task_stats("detection").unwrap();
         assert_eq!(stats.failures, 0);
         assert!(!scheduler.health().is_degraded());
+    }
+
+    /// A frozen camera delivers the same picture under new frame numbers: the detector says so
+    /// instead of reporting a stale pad position as fresh. A copy of the same bytes counts too.
+    #[test]
+    fn a_frozen_camera_is_named_and_not_a_detection() {
+        let registry = crate::plugins::builtin_registry().unwrap();
+        let detection = task_config("detection", PLUGIN_NAME, "");
+        let mut scheduler = SchedulerBuilder::new(&registry)
+            .task(&detection)
+            .build_virtual()
+            .unwrap();
+        let frames = scheduler
+            .bus()
+            .publisher::<CameraFrame>(CAMERA_FRAME)
+            .unwrap();
+        let mut observations = scheduler
+            .bus()
+            .subscriber::<MarkerObservation>(LANDING_MARKER)
+            .unwrap();
+        scheduler.start().unwrap();
+        let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
+        let pose = CameraPose::downward(Vector3::new(0.0, 0.0, -5.0), 0.0, 0.0, 0.3);
+        let mut scene = Scene::new(Texture::field(2));
+        scene.patches = LandingMarkerLayout::default()
+            .patches(0.3, 0.2, 0.0, 0.0)
+            .unwrap();
+        let image = Arc::new(render(&camera, &pose, &scene, &RenderOptions::default()).unwrap());
+        let copy = Arc::new((*image).clone());
+        let mut results = Vec::new();
+        for (frame_index, image) in [(0, image.clone()), (1, image), (2, copy)] {
+            frames.publish(scheduler.now(), CameraFrame { frame_index, image });
+            scheduler.run_for(Duration::from_millis(150)).unwrap();
+            results.push(
+                observations
+                    .take_new()
+                    .expect("an observation")
+                    .value
+                    .clone(),
+            );
+        }
+        assert!(results[0].observation.is_some(), "{:?}", results[0]);
+        for frozen in &results[1..] {
+            assert!(frozen.observation.is_none());
+            let error = frozen.frame_error.as_deref().expect("a named error");
+            assert!(
+                error.contains("camera frozen") && error.contains("frame 0"),
+                "{error}"
+            );
+        }
+        assert_eq!(scheduler.task_stats("detection").unwrap().failures, 0);
     }
 
     #[test]

@@ -59,7 +59,9 @@ mod tests {
     use algorithms::estimation::projection::Attitude;
     use algorithms::vision::camera::{CameraPose, PinholeCamera};
     use algorithms::vision::landing_marker::LandingMarkerLayout;
-    use algorithms::vision::render::{render, RenderOptions, Scene, Texture};
+    use algorithms::vision::render::{
+        apply_effects, render, ImageEffects, RenderOptions, Scene, Texture,
+    };
     use nalgebra::Vector3;
     use std::sync::Arc;
     use std::time::Duration;
@@ -73,7 +75,8 @@ mod tests {
 
     /// A hovering vehicle over a still pad: its camera's frames and its autopilot's state.
     struct HoveringVehicle {
-        frame: Arc<algorithms::vision::image::GrayImage>,
+        /// A few frames differing only in sensor noise: a live camera never repeats a frame.
+        noisy_frames: Vec<Arc<algorithms::vision::image::GrayImage>>,
         frame_index: u64,
         frames: Option<Publisher<CameraFrame>>,
         state: Option<Publisher<VehicleState>>,
@@ -93,8 +96,18 @@ mod tests {
                 .patches(PAD_NORTH_M, PAD_EAST_M, 0.0, 0.9)
                 .unwrap();
             let frame = render(&camera, &pose, &scene, &RenderOptions::default()).unwrap();
+            let noisy_frames = (1..=3)
+                .map(|noise_seed| {
+                    let effects = ImageEffects {
+                        noise_sigma: 2.0,
+                        noise_seed,
+                        ..ImageEffects::default()
+                    };
+                    Arc::new(apply_effects(&frame, &effects).unwrap())
+                })
+                .collect();
             Self {
-                frame: Arc::new(frame),
+                noisy_frames,
                 frame_index: 0,
                 frames: None,
                 state: None,
@@ -120,7 +133,7 @@ mod tests {
             self.state.as_ref().unwrap().publish(ctx.now(), state);
             let frame = CameraFrame {
                 frame_index: self.frame_index,
-                image: self.frame.clone(),
+                image: self.noisy_frames[self.frame_index as usize % 3].clone(),
             };
             self.frames.as_ref().unwrap().publish(ctx.now(), frame);
             self.frame_index += 1;
