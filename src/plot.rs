@@ -85,6 +85,92 @@ fn draw<DB: DrawingBackend>(
     Ok(())
 }
 
+/// The simulated mission: vehicle and tractor tracks (north against east) on the left, the
+/// battery's state of charge over time on the right.
+pub fn mission_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, String> {
+    if outcome.track.is_empty() {
+        return Err("the run recorded no track".into());
+    }
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (1200, 560)).into_drawing_area();
+        draw_mission(&root, outcome).map_err(|error| format!("cannot draw the plot: {error}"))?;
+        root.present()
+            .map_err(|error| format!("cannot draw the plot: {error}"))?;
+    }
+    Ok(svg)
+}
+
+fn draw_mission<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    outcome: &sim::outcome::SimOutcome,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    root.fill(&WHITE)?;
+    let (left, right) = root.split_horizontally(620);
+    let track = &outcome.track;
+    let points = track.iter().flat_map(|s| [s.vehicle_ne_m, s.tractor_ne_m]);
+    let (mut n_lo, mut n_hi, mut e_lo, mut e_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for [n, e] in points {
+        (n_lo, n_hi, e_lo, e_hi) = (n_lo.min(n), n_hi.max(n), e_lo.min(e), e_hi.max(e));
+    }
+    // Equal scales on both axes so turns look like turns.
+    let span = (n_hi - n_lo).max(e_hi - e_lo).max(1.0) * 1.1;
+    let (n_mid, e_mid) = ((n_hi + n_lo) / 2.0, (e_hi + e_lo) / 2.0);
+    let mut chart = ChartBuilder::on(&left)
+        .caption("vehicle and tractor (north up)", ("sans-serif", 20))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(
+            (e_mid - span / 2.0)..(e_mid + span / 2.0),
+            (n_mid - span / 2.0)..(n_mid + span / 2.0),
+        )?;
+    chart
+        .configure_mesh()
+        .x_desc("east (m)")
+        .y_desc("north (m)")
+        .draw()?;
+    chart
+        .draw_series(LineSeries::new(
+            track.iter().map(|s| (s.tractor_ne_m[1], s.tractor_ne_m[0])),
+            RGBColor(200, 120, 0).stroke_width(3),
+        ))?
+        .label("tractor")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RGBColor(200, 120, 0)));
+    chart
+        .draw_series(LineSeries::new(
+            track.iter().map(|s| (s.vehicle_ne_m[1], s.vehicle_ne_m[0])),
+            BLUE,
+        ))?
+        .label("vehicle")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+
+    let end_s = track.last().map_or(1.0, |s| s.time_s).max(1.0);
+    let soc_lo = track.iter().map(|s| s.battery_soc).fold(1.0, f64::min);
+    let mut battery = ChartBuilder::on(&right)
+        .caption("battery state of charge", ("sans-serif", 20))
+        .margin(15)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0.0..end_s, (soc_lo - 0.05).max(0.0)..1.0)?;
+    battery
+        .configure_mesh()
+        .x_desc("time (s)")
+        .y_desc("state of charge")
+        .draw()?;
+    battery.draw_series(LineSeries::new(
+        track.iter().map(|s| (s.time_s, s.battery_soc)),
+        GREEN.stroke_width(2),
+    ))?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -105,5 +191,49 @@ mod tests {
         assert!(svg.contains("chosen plan"));
         // one small circle per frontier point plus the chosen one and its legend marker
         assert!(svg.matches("<circle").count() > frontier.len());
+    }
+
+    #[test]
+    fn the_mission_svg_draws_both_tracks_and_refuses_an_empty_one() {
+        let mut outcome = empty_outcome();
+        assert!(mission_svg(&outcome).is_err());
+        outcome.track = (0..10)
+            .map(|i| sim::outcome::TrackSample {
+                time_s: i as f64,
+                vehicle_ne_m: [i as f64, 0.5],
+                altitude_m: 8.0,
+                tractor_ne_m: [i as f64, 0.0],
+                battery_soc: 1.0 - 0.01 * i as f64,
+            })
+            .collect();
+        let svg = mission_svg(&outcome).unwrap();
+        assert!(svg.contains("tractor") && svg.contains("vehicle"));
+        assert!(svg.contains("state of charge"));
+        assert!(
+            svg.matches("<polyline").count() >= 3,
+            "two tracks and the battery"
+        );
+    }
+
+    fn empty_outcome() -> sim::outcome::SimOutcome {
+        sim::outcome::SimOutcome {
+            seed: 0,
+            landed_on_pad: false,
+            touched_down: false,
+            touchdown_error_m: None,
+            time_to_land_s: None,
+            mission_time_s: 0.0,
+            flight_energy_wh: 0.0,
+            companion_energy_wh: 0.0,
+            battery_left_fraction: 1.0,
+            landing_aborts: 0,
+            qos_changes: Vec::new(),
+            events: Vec::new(),
+            hazards_seen: None,
+            hazards_total: 0,
+            skipped_tasks: Vec::new(),
+            speedup: 1.0,
+            track: Vec::new(),
+        }
     }
 }

@@ -4,6 +4,10 @@
 pub mod autopilot;
 pub mod camera;
 pub mod flight;
+pub mod mission;
 pub mod outcome;
 pub mod power;
 pub mod scene;
+pub mod tractor;
+pub mod vehicle;
+pub mod wind;

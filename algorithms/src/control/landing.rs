@@ -562,7 +562,17 @@ impl Machine {
             return;
         }
         match self.mode {
-            LandingMode::Landed | LandingMode::FinalLanding => {}
+            // Airborne again (a mission that starts on the ground, or a take-off after a
+            // landing): the procedure starts over.
+            LandingMode::Landed => {
+                if !input.touchdown_detected && height_m > c.final_landing_height_m {
+                    self.mode = LandingMode::Search;
+                    self.last_fix_time_s = None;
+                    self.centred_since_s = None;
+                    self.hold_height_m = c.initial_height_m;
+                }
+            }
+            LandingMode::FinalLanding => {}
             LandingMode::Search | LandingMode::Reacquire => {
                 if error_m.is_some() {
                     self.enter_follow(c.initial_height_m);
@@ -932,6 +942,23 @@ mod tests {
         assert_eq!(hover.velocity_setpoint_ned_m_s, Vector3::zeros());
         assert!(!hover.land_command);
         assert!(LandingOutput::hover(LandingMode::FinalLanding).land_command);
+    }
+
+    /// A vehicle that starts on the ground reports touchdown; once it is airborne above LH
+    /// the procedure starts over from Search, and finds the target again.
+    #[test]
+    fn a_take_off_after_landed_starts_over() {
+        let mut c = LandingController::new(LandingConfig::default()).unwrap();
+        let mut on_ground = input(0.0, None, 0.0);
+        on_ground.touchdown_detected = true;
+        assert_eq!(c.step(&on_ground).unwrap().mode, LandingMode::Landed);
+        // Climbing through 1 m (below LH): still Landed, nothing commanded.
+        let climbing = input(1.0, None, 1.0);
+        assert_eq!(c.step(&climbing).unwrap().mode, LandingMode::Landed);
+        let airborne = input(2.0, None, 5.0);
+        assert_eq!(c.step(&airborne).unwrap().mode, LandingMode::Search);
+        let seen = input(2.1, fix_at(0.5, 0.0, 7.5), 7.5);
+        assert_eq!(c.step(&seen).unwrap().mode, LandingMode::Follow);
     }
 
     #[test]

@@ -1,0 +1,680 @@
+//! One simulated mission: the world (vehicle, tractor, wind, camera, pack) and the runtime
+//! (the configured task plugins on the virtual-time scheduler, the governor, the mission
+//! sequencer), joined only by MAVLink over UDP on the loopback and by camera frames.
+//!
+//! Time advances in ticks of [`TICK_S`] (50 Hz, the rate at which PX4 streams attitude and
+//! position); physics integrates at [`PHYSICS_DT_S`] inside a tick. Each tick, in lockstep:
+//! the autopilot sends its telemetry ending in a TIMESYNC; the runtime's link reads up to that
+//! barrier; the camera renders if a consumer will look; the runtime's tasks run up to the
+//! tick; the sequencer's commands go back over the link, again up to a barrier; the autopilot
+//! applies them; physics moves on. Nothing depends on the host's speed, so the same config and
+//! seed fly the same mission.
+
+use crate::autopilot::MavlinkAutopilot;
+use crate::camera::{SimCamera, SimCameraConfig, VehiclePose};
+use crate::outcome::{QosChange, SimOutcome, TrackSample};
+use crate::power::{RotorPowerModel, SimBattery};
+use crate::scene::{HazardField, PadPose, ScatterConfig, SimScene, TractorBody};
+use crate::tractor::{PathKind, Tractor, TractorParams};
+use crate::vehicle::{Multirotor, VehicleParams};
+use crate::wind::{Wind, WindConfig};
+use nalgebra::Vector3;
+use runtime::clock::Timestamp;
+use runtime::energy::MissionModel;
+use runtime::governor::{companion_power_w, Governor, GovernorEvent};
+use runtime::link::{FailsafeAction, LinkConfig, LinkStatus, MavlinkLink};
+use runtime::mission::{
+    AutopilotView, MissionEvent, MissionPlan, MissionSequencer, SequencerInput,
+};
+use runtime::registry::PluginRegistry;
+use runtime::scheduler::{SchedulerBuilder, VirtualScheduler};
+use runtime::telemetry::MissionProgress;
+use runtime::topics::{
+    CameraFrame, LandingSetpoint, MissionPhase, VehicleState, CAMERA_FRAME, LANDING_SETPOINT,
+    MISSION_PHASE, VEHICLE_STATE,
+};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// How long either end of the lockstep waits for the other before giving up (wall clock).
+const LOCKSTEP_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// One lockstep tick.
+pub const TICK_S: f64 = 0.02;
+/// The physics step inside a tick.
+pub const PHYSICS_DT_S: f64 = 0.005;
+
+/// The wind model to fly in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum WindKind {
+    /// The seed's gust model.
+    #[default]
+    Gusts,
+    /// Dryden turbulence around the mean wind.
+    Dryden,
+}
+
+/// Faults to inject, as (from, until) in simulated seconds after the tracking phase began.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Faults {
+    /// The MAVLink link drops everything both ways.
+    pub link_loss: Option<(f64, f64)>,
+    /// The camera keeps delivering its last frame.
+    pub camera_freeze: Option<(f64, f64)>,
+}
+
+/// What to fly.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimOptions {
+    pub path: PathKind,
+    pub wind_speed_m_s: f64,
+    pub wind_kind: WindKind,
+    pub platform_speed_m_s: f64,
+    pub seed: u64,
+    /// Overrides the duration of the middle phases (the tracking), e.g. to evaluate landings.
+    pub tracking_s: Option<f64>,
+    /// Tasks held at the level whose knob value is given (the governor leaves them alone).
+    pub fixed_levels: Vec<(String, f64)>,
+    /// The simulation gives up after this much simulated time; `None`: the configured
+    /// mission's length (tracking override included) plus [`TIME_MARGIN_S`].
+    pub max_time_s: Option<f64>,
+    pub faults: Faults,
+    /// Keep a 1 Hz track of vehicle, tractor and battery for plotting.
+    pub record_track: bool,
+}
+
+impl Default for SimOptions {
+    fn default() -> Self {
+        Self {
+            path: PathKind::Straight,
+            wind_speed_m_s: 0.0,
+            wind_kind: WindKind::Gusts,
+            platform_speed_m_s: 1.5,
+            seed: 0,
+            tracking_s: None,
+            fixed_levels: Vec::new(),
+            max_time_s: None,
+            faults: Faults::default(),
+            record_track: false,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("simulation setup: {0}")]
+    Setup(String),
+    #[error("scheduler: {0}")]
+    Scheduler(#[from] runtime::scheduler::SchedulerError),
+    #[error("MAVLink: {0}")]
+    Link(String),
+    #[error("--fix {task}={value}: {why}")]
+    FixedLevel {
+        task: String,
+        value: f64,
+        why: String,
+    },
+}
+
+/// Time allowed beyond the configured mission before the simulation gives up: take-off,
+/// transit and a few landing attempts.
+pub const TIME_MARGIN_S: f64 = 240.0;
+
+/// Where the tractor waits for the vehicle, north of the take-off point.
+const MEETING_POINT_NORTH_M: f64 = 15.0;
+
+/// Flies one mission.
+pub fn simulate(
+    model: &MissionModel,
+    registry: &PluginRegistry,
+    options: &SimOptions,
+) -> Result<SimOutcome, SimError> {
+    let wall_start = Instant::now();
+    let config = &model.config;
+    let setup = |e: &dyn std::fmt::Display| SimError::Setup(e.to_string());
+
+    // The runtime: every configured task whose plugin this build has.
+    let mut skipped_tasks = Vec::new();
+    let mut builder = SchedulerBuilder::new(registry);
+    builder.seed(options.seed);
+    for task in &config.tasks {
+        if registry.contains(&task.plugin) {
+            builder.task(task);
+        } else {
+            skipped_tasks.push(format!(
+                "{} (plugin `{}` is not built into this binary)",
+                task.name, task.plugin
+            ));
+        }
+    }
+    let mut scheduler = builder.build_virtual()?;
+    let mut governor = Governor::from_mission(model, config.governor.clone().unwrap_or_default())
+        .map_err(|e| setup(&e))?;
+    let fixed = resolve_fixed_levels(model, &options.fixed_levels)?;
+    let problem = governor.problem().clone();
+
+    // The world.
+    let pad_height_m = TractorParams::default().pad_height_m;
+    let meeting = [MEETING_POINT_NORTH_M, 0.0];
+    let tractor_params = TractorParams {
+        speed_m_s: options.platform_speed_m_s,
+        ..TractorParams::default()
+    };
+    let mut tractor =
+        Tractor::new(options.path, tractor_params, meeting, 0.0).map_err(|e| setup(&e))?;
+    let mut vehicle =
+        Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(|e| setup(&e))?;
+    let wind_config = match (options.wind_speed_m_s > 0.0, options.wind_kind) {
+        (false, _) => WindConfig::Calm,
+        (true, WindKind::Gusts) => WindConfig::Gusts {
+            speed_m_s: options.wind_speed_m_s,
+            direction_from_rad: std::f64::consts::FRAC_PI_2,
+        },
+        (true, WindKind::Dryden) => WindConfig::Dryden {
+            speed_m_s: options.wind_speed_m_s,
+            direction_from_rad: std::f64::consts::FRAC_PI_2,
+        },
+    };
+    let mut wind = Wind::new(wind_config, options.seed ^ 0x5749_4e44).map_err(|e| setup(&e))?;
+    let camera_config = camera_config(model);
+    let camera_period_s = 1.0 / camera_config.rate_fps;
+    let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
+    let hazards = HazardField::scatter(
+        options.seed,
+        &ScatterConfig {
+            keep_out_path_ne_m: vec![meeting],
+            ..ScatterConfig::default()
+        },
+    )
+    .map_err(|e| setup(&e))?;
+    let hazards_total = hazards.hazards.len();
+    let mut scene = SimScene::new(options.seed)
+        .with_tractor_body(TractorBody::default())
+        .map_err(|e| setup(&e))?
+        .with_hazards(hazards);
+    let pack = model.battery_spec(None).map_err(|e| setup(&e))?;
+    let mut battery = SimBattery::new(pack);
+    // Without a hover figure in the config, the tracking phase's flight power stands in.
+    let hover_power_w = config
+        .flight
+        .hover_power_w
+        .or_else(|| {
+            config
+                .mission
+                .phases
+                .iter()
+                .find_map(|p| config.flight.power_w(&p.name))
+        })
+        .ok_or_else(|| SimError::Setup("[flight] gives no hover_power_w".into()))?;
+    let rotors = RotorPowerModel::iris(hover_power_w);
+    rotors.validate().map_err(|e| setup(&e))?;
+
+    // MAVLink over the loopback, as with PX4 SITL: the autopilot sends to the runtime's port.
+    let link_error = |e: &dyn std::fmt::Display| SimError::Link(e.to_string());
+    let mut link =
+        MavlinkLink::bind_local_ephemeral(LinkConfig::default()).map_err(|e| link_error(&e))?;
+    let runtime_addr = link
+        .local_addr()
+        .ok_or_else(|| SimError::Link("the link has no local UDP address".into()))?;
+    let mut autopilot =
+        MavlinkAutopilot::bind_local(runtime_addr, true).map_err(|e| link_error(&e))?;
+
+    let plan = mission_plan(model, options, meeting, pad_height_m);
+    let max_time_s = options.max_time_s.unwrap_or_else(|| {
+        let phases = &model.config.mission.phases;
+        let count = plan.phase_durations_s.len();
+        let middle_s: f64 = plan
+            .phase_durations_s
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| i > 0 && i + 1 < count)
+            .map(|(_, s)| s)
+            .sum();
+        let landing_s = phases.last().map_or(0.0, |p| p.duration_s);
+        middle_s + landing_s + TIME_MARGIN_S
+    });
+    let mut sequencer = MissionSequencer::new(plan);
+    let bus = scheduler.bus().clone();
+    let frames = bus
+        .publisher::<CameraFrame>(CAMERA_FRAME)
+        .map_err(|e| setup(&e))?;
+    let vehicle_topic = bus
+        .publisher::<VehicleState>(VEHICLE_STATE)
+        .map_err(|e| setup(&e))?;
+    let phase_topic = bus
+        .publisher::<MissionPhase>(MISSION_PHASE)
+        .map_err(|e| setup(&e))?;
+    let mut setpoints = bus
+        .subscriber::<LandingSetpoint>(LANDING_SETPOINT)
+        .map_err(|e| setup(&e))?;
+    let camera_consumer = config
+        .tasks
+        .iter()
+        .find(|t| t.plugin == "landing_marker" && registry.contains(&t.plugin))
+        .map(|t| t.name.clone());
+
+    apply_levels(&mut scheduler, model, &governor, &fixed)?;
+    scheduler.start()?;
+
+    let mut qos_changes = Vec::new();
+    let mut events: Vec<(f64, String)> = Vec::new();
+    let mut track = Vec::new();
+    let mut published_phase: Option<usize> = None;
+    let mut landing_started_s: Option<f64> = None;
+    let mut tracking_started_s: Option<f64> = None;
+    let mut land_now: Option<&'static str> = None;
+    let mut landing_aborts = 0u32;
+    let mut last_landing_mode = None;
+    let mut tractor_moving = false;
+    let mut next_track_s = 0.0;
+    let mut tick = 0u64;
+    let mut finished_s = None;
+    loop {
+        let time_s = tick as f64 * TICK_S;
+        let now = Timestamp::from_nanos(MavlinkAutopilot::time_ns(time_s));
+        if time_s > max_time_s {
+            events.push((
+                time_s,
+                format!("simulation time limit of {max_time_s:.0} s reached"),
+            ));
+            break;
+        }
+        let fault_time = tracking_started_s.map(|start| time_s - start);
+        let in_window = |window: Option<(f64, f64)>| matches!((window, fault_time), (Some((from, until)), Some(t)) if t >= from && t < until);
+        autopilot.set_link_down(in_window(options.faults.link_loss));
+
+        // Autopilot → runtime.
+        let snapshot = vehicle.snapshot(time_s, battery.reading());
+        let t_ns = autopilot.publish(&snapshot).map_err(|e| link_error(&e))?;
+        let update = link
+            .poll_lockstep(t_ns, LOCKSTEP_TIMEOUT)
+            .map_err(|e| link_error(&e))?;
+        if link.failsafe_action() == FailsafeAction::HoldThenReenter {
+            link.recover().map_err(|e| link_error(&e))?;
+        }
+        if let Some(state) = update.vehicle_state {
+            vehicle_topic.publish(now, state);
+        }
+        if let Some(sample) = update.battery {
+            let progress = sequencer
+                .status()
+                .phase
+                .map_or(MissionProgress::start(), |p| {
+                    MissionProgress::new(p, time_s - sequencer.status().phase_started_s)
+                });
+            match governor.update(&sample, progress) {
+                Ok(decisions) => {
+                    for event in decisions {
+                        if let GovernorEvent::LandNow(_) = &event {
+                            land_now = Some("the battery cannot reach the end of the mission");
+                        }
+                        qos_changes.push(QosChange {
+                            time_s,
+                            description: describe(&event),
+                        });
+                    }
+                    apply_levels(&mut scheduler, model, &governor, &fixed)?;
+                }
+                Err(error) => events.push((time_s, format!("telemetry refused: {error}"))),
+            }
+        }
+
+        // The camera renders only what the detector will look at before the next frame.
+        if camera.is_due(time_s) {
+            let wanted = camera_consumer.as_deref().and_then(|name| {
+                let next = scheduler.next_activation(name)?.as_secs_f64();
+                (next < time_s + camera_period_s).then_some(())
+            });
+            if wanted.is_some() {
+                scene
+                    .set_pad_pose(pad_pose(&tractor))
+                    .map_err(|e| setup(&e))?;
+                let pose = VehiclePose {
+                    position_ned_m: vehicle.position_ned_m(),
+                    attitude: vehicle.attitude(),
+                    velocity_ned_m_s: vehicle.velocity_ned_m_s(),
+                    body_rates_rad_s: vehicle.body_rates_rad_s(),
+                };
+                match camera.capture_frame(time_s, &pose, &scene) {
+                    Ok(frame) => {
+                        frames.publish(now, frame);
+                    }
+                    Err(error) => events.push((time_s, format!("camera: {error}"))),
+                }
+            }
+        }
+
+        // The runtime's tasks up to now.
+        scheduler.run_until(now)?;
+        let landing = setpoints
+            .latest()
+            .filter(|m| time_s - m.stamp.as_secs_f64() <= 0.5)
+            .map(|m| m.value);
+        if let Some(setpoint) = landing {
+            use algorithms::control::landing::LandingMode;
+            if setpoint.mode == LandingMode::Reacquire
+                && last_landing_mode != Some(LandingMode::Reacquire)
+            {
+                landing_aborts += 1;
+                events.push((time_s, "landing: target lost, climbing to reacquire".into()));
+            }
+            last_landing_mode = Some(setpoint.mode);
+        }
+
+        // The sequencer → runtime → autopilot.
+        let telemetry = link.telemetry();
+        let view = match (telemetry.autopilot(), telemetry.position_ned_m()) {
+            (Some(status), Some(position_ned_m)) => Some(AutopilotView {
+                armed: status.armed,
+                mode: status.mode,
+                landed: telemetry.vehicle_state(time_s).is_some_and(|s| s.landed),
+                position_ned_m,
+            }),
+            _ => None,
+        };
+        let (commands, mission_events) = sequencer.step(&SequencerInput {
+            time_s,
+            link_up: update.status == LinkStatus::Connected,
+            autopilot: view,
+            landing,
+            land_now,
+        });
+        for event in mission_events {
+            if let MissionEvent::PhaseStarted { phase, name } = &event {
+                if name == "landing" || *phase + 1 == config.mission.phases.len() {
+                    landing_started_s = Some(time_s);
+                }
+                if *phase == 1 {
+                    tracking_started_s = Some(time_s);
+                    if let Some((from_s, until_s)) = options.faults.camera_freeze {
+                        camera.freeze(time_s + from_s, time_s + until_s);
+                    }
+                }
+            }
+            events.push((time_s, describe_mission(&event)));
+        }
+        let status = sequencer.status();
+        if status.phase != published_phase {
+            if let Some(index) = status.phase {
+                phase_topic.publish(
+                    now,
+                    MissionPhase {
+                        index,
+                        name: Arc::from(config.mission.phases[index].name.as_str()),
+                    },
+                );
+                apply_levels(&mut scheduler, model, &governor, &fixed)?;
+                // The tractor drives off once the vehicle is with it.
+                tractor_moving |= index >= 1;
+            }
+            published_phase = status.phase;
+        }
+        for command in &commands {
+            link.send(command).map_err(|e| link_error(&e))?;
+        }
+        link.end_tick(t_ns).map_err(|e| link_error(&e))?;
+        let received = autopilot
+            .receive_lockstep(t_ns, LOCKSTEP_TIMEOUT)
+            .map_err(|e| link_error(&e))?;
+        for received in received {
+            let result = vehicle.command(received.command, time_s);
+            if let Some(pending) = received.ack {
+                autopilot
+                    .ack(pending, &result)
+                    .map_err(|e| link_error(&e))?;
+            }
+        }
+        if status.finished && finished_s.is_none() {
+            finished_s = Some(time_s);
+        }
+        if let Some(done_s) = finished_s {
+            // Let the vehicle settle on the pad for a moment, then stop.
+            if time_s - done_s >= 1.0 {
+                break;
+            }
+        }
+
+        // Physics.
+        let substeps = (TICK_S / PHYSICS_DT_S).round() as usize;
+        for substep in 0..substeps {
+            let t_s = time_s + substep as f64 * PHYSICS_DT_S;
+            if tractor_moving {
+                tractor.step(PHYSICS_DT_S).map_err(|e| setup(&e))?;
+            }
+            let position = vehicle.position_ned_m();
+            let force = wind.force_ned_n(t_s, -position.z, vehicle.velocity_ned_m_s());
+            vehicle
+                .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
+                .map_err(|e| setup(&e))?;
+        }
+        let velocity = vehicle.velocity_ned_m_s();
+        let air = velocity - wind.wind_velocity_ned_m_s(time_s, -vehicle.position_ned_m().z);
+        let flight_w = if vehicle.is_flying() {
+            rotors.power_w(air.xy().norm(), -velocity.z)
+        } else {
+            0.0
+        };
+        let phase = status.phase.unwrap_or(0);
+        let levels = effective_levels(&governor, &fixed, phase);
+        let companion_w = companion_power_w(&problem, phase, &levels).unwrap_or(0.0);
+        if let Err(error) = battery.drain(flight_w, companion_w, TICK_S) {
+            events.push((time_s, format!("battery: {error}")));
+            break;
+        }
+        if battery.soc() <= 0.0 {
+            events.push((time_s, "battery empty: the vehicle falls".into()));
+            break;
+        }
+        if options.record_track && time_s >= next_track_s {
+            let position = vehicle.position_ned_m();
+            let pose = tractor.pose();
+            track.push(TrackSample {
+                time_s,
+                vehicle_ne_m: [position.x, position.y],
+                altitude_m: -position.z,
+                tractor_ne_m: [pose.position_ne_m.x, pose.position_ne_m.y],
+                battery_soc: battery.soc(),
+            });
+            next_track_s += 1.0;
+        }
+        tick += 1;
+    }
+    let end_s = tick as f64 * TICK_S;
+    scheduler.stop();
+    let touchdown = vehicle.touchdown();
+    let (flight_energy_wh, companion_energy_wh) = battery.energy_wh();
+    let wall_s = wall_start.elapsed().as_secs_f64();
+    Ok(SimOutcome {
+        seed: options.seed,
+        landed_on_pad: touchdown.is_some_and(|t| t.on_pad),
+        touched_down: touchdown.is_some(),
+        touchdown_error_m: touchdown.map(|t| t.horizontal_error_m),
+        time_to_land_s: match (touchdown, landing_started_s) {
+            (Some(t), Some(start)) => Some(t.time_s - start),
+            _ => None,
+        },
+        mission_time_s: end_s,
+        flight_energy_wh,
+        companion_energy_wh,
+        battery_left_fraction: battery.soc(),
+        landing_aborts,
+        qos_changes,
+        events,
+        hazards_seen: None,
+        hazards_total,
+        skipped_tasks,
+        speedup: end_s / wall_s.max(1e-9),
+        track,
+    })
+}
+
+/// `(task index, level index)` for every `--fix TASK=VALUE`.
+fn resolve_fixed_levels(
+    model: &MissionModel,
+    fixed: &[(String, f64)],
+) -> Result<Vec<(usize, usize)>, SimError> {
+    fixed
+        .iter()
+        .map(|(name, value)| {
+            let error = |why: String| SimError::FixedLevel {
+                task: name.clone(),
+                value: *value,
+                why,
+            };
+            let tasks = &model.config.tasks;
+            let task = tasks.iter().position(|t| &t.name == name).ok_or_else(|| {
+                let known: Vec<&str> = tasks.iter().map(|t| t.name.as_str()).collect();
+                error(format!("no such task; the tasks are {}", known.join(", ")))
+            })?;
+            let levels = &tasks[task].levels;
+            let level = levels
+                .iter()
+                .position(|v| (v - value).abs() <= 1e-9 * v.abs().max(1.0))
+                .ok_or_else(|| error(format!("not one of the task's levels {levels:?}")))?;
+            Ok((task, level))
+        })
+        .collect()
+}
+
+/// The governor's levels for `phase` with the fixed ones put in.
+fn effective_levels(
+    governor: &Governor,
+    fixed: &[(usize, usize)],
+    phase: usize,
+) -> Vec<power_models::planner::TaskLevel> {
+    let mut levels = governor
+        .phase_levels(phase)
+        .map(<[_]>::to_vec)
+        .unwrap_or_default();
+    for level in &mut levels {
+        if let Some(&(_, fixed_level)) = fixed.iter().find(|(task, _)| *task == level.task) {
+            level.level = fixed_level;
+        }
+    }
+    levels
+}
+
+/// Sets every scheduled task to the level in force: fixed, else the governor's.
+fn apply_levels(
+    scheduler: &mut VirtualScheduler,
+    model: &MissionModel,
+    governor: &Governor,
+    fixed: &[(usize, usize)],
+) -> Result<(), SimError> {
+    let mut wanted: Vec<(usize, usize)> = governor
+        .current_levels()
+        .iter()
+        .map(|l| (l.task, l.level))
+        .collect();
+    for &(task, level) in fixed {
+        match wanted.iter_mut().find(|(t, _)| *t == task) {
+            Some(entry) => entry.1 = level,
+            None => wanted.push((task, level)),
+        }
+    }
+    for (task, level) in wanted {
+        let name = &model.config.tasks[task].name;
+        if let Some(current) = scheduler.level(name) {
+            if current != level {
+                scheduler.set_level(name, level)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The camera the detector's params describe (field of view and image size), at 10 fps like
+/// the seed's.
+fn camera_config(model: &MissionModel) -> SimCameraConfig {
+    let mut config = SimCameraConfig::default();
+    let tracker = model
+        .config
+        .tasks
+        .iter()
+        .find(|t| t.plugin == "kalman_tracker");
+    if let Some(params) = tracker.map(|t| &t.params) {
+        let number = |key: &str| {
+            params
+                .get(key)
+                .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
+        };
+        if let Some(fov) = number("camera_horizontal_fov_deg") {
+            config.horizontal_fov_deg = fov;
+        }
+        if let Some(width) = number("image_width_px") {
+            config.width_px = width as usize;
+        }
+        if let Some(height) = number("image_height_px") {
+            config.height_px = height as usize;
+        }
+    }
+    config
+}
+
+/// The sequencer's plan from the config: phases, the follow height (the landing task's IH
+/// above the pad), the meeting point.
+fn mission_plan(
+    model: &MissionModel,
+    options: &SimOptions,
+    meeting: [f64; 2],
+    pad_height_m: f64,
+) -> MissionPlan {
+    let phases = &model.config.mission.phases;
+    let durations = phases
+        .iter()
+        .enumerate()
+        .map(|(i, phase)| {
+            let middle = i > 0 && i + 1 < phases.len();
+            match options.tracking_s {
+                Some(s) if middle => s,
+                _ => phase.duration_s,
+            }
+        })
+        .collect();
+    let initial_altitude_m = model
+        .config
+        .tasks
+        .iter()
+        .find(|t| t.plugin == "landing_guidance")
+        .and_then(|t| t.params.get("initial_altitude_m"))
+        .and_then(|v| v.as_float())
+        .unwrap_or(7.5);
+    let mut plan = MissionPlan::new(phases.iter().map(|p| p.name.clone()).collect(), durations);
+    plan.cruise_altitude_m = initial_altitude_m + pad_height_m;
+    plan.meeting_point_ne_m = meeting;
+    plan
+}
+
+fn pad_pose(tractor: &Tractor) -> PadPose {
+    let pad = tractor.pad();
+    PadPose {
+        north_m: pad.centre_ned_m.x,
+        east_m: pad.centre_ned_m.y,
+        height_m: -pad.centre_ned_m.z,
+        yaw_rad: pad.yaw_rad,
+    }
+}
+
+fn describe(event: &GovernorEvent) -> String {
+    match event {
+        GovernorEvent::LevelsChanged(change) => format!("levels changed: {change:?}"),
+        GovernorEvent::LandNow(land) => format!("land now: {land:?}"),
+        GovernorEvent::ReplanFailed { time_s, message } => {
+            format!("re-plan failed at {time_s:.1} s: {message}")
+        }
+    }
+}
+
+fn describe_mission(event: &MissionEvent) -> String {
+    match event {
+        MissionEvent::Armed => "armed".into(),
+        MissionEvent::TookOff => "took off".into(),
+        MissionEvent::OffboardEngaged => "offboard engaged".into(),
+        MissionEvent::PhaseStarted { name, .. } => format!("phase {name} started"),
+        MissionEvent::LinkLost => "MAVLink link lost: failsafe (autopilot holds)".into(),
+        MissionEvent::LinkRestored => "MAVLink link restored".into(),
+        MissionEvent::LandNow { reason } => format!("land now: {reason}"),
+        MissionEvent::Touchdown => "touchdown".into(),
+        MissionEvent::Aborted { reason } => format!("mission aborted: {reason}"),
+    }
+}

@@ -1,0 +1,249 @@
+//! `qosrt sim`: the whole mission in the built-in simulator — the real runtime, the real tasks,
+//! real MAVLink over UDP — in virtual time; one run's outcome, or a summary over many seeds.
+
+use crate::check::{report_failure, EXIT_INVALID_CONFIG};
+use indicatif::{ProgressBar, ProgressStyle};
+use runtime::config::load_file;
+use runtime::energy::{load_mission_model, MissionModel};
+use runtime::plugins::builtin_registry;
+use runtime::registry::PluginRegistry;
+use sim::mission::{simulate, Faults, SimOptions, WindKind};
+use sim::outcome::{SimOutcome, SimSummary};
+use sim::tractor::PathKind;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+pub struct SimArgs {
+    pub file: PathBuf,
+    pub path: PathKind,
+    pub wind_m_s: f64,
+    pub dryden: bool,
+    pub platform_speed_m_s: f64,
+    pub seed: u64,
+    pub runs: usize,
+    pub tracking_s: Option<f64>,
+    pub fixed_levels: Vec<(String, f64)>,
+    pub json: bool,
+    pub svg: Option<PathBuf>,
+}
+
+/// Exit status when the mission did not land on the pad (or no run of many did).
+pub const EXIT_NOT_LANDED: u8 = 4;
+
+pub fn run(args: &SimArgs) -> ExitCode {
+    if !(args.wind_m_s.is_finite() && (0.0..=30.0).contains(&args.wind_m_s)) {
+        eprintln!(
+            "error: --wind-mps must be within [0, 30] m/s, found {}",
+            args.wind_m_s
+        );
+        return ExitCode::from(EXIT_INVALID_CONFIG);
+    }
+    if !(args.platform_speed_m_s.is_finite() && (0.0..=10.0).contains(&args.platform_speed_m_s)) {
+        eprintln!(
+            "error: --platform-speed-mps must be within [0, 10] m/s, found {}",
+            args.platform_speed_m_s
+        );
+        return ExitCode::from(EXIT_INVALID_CONFIG);
+    }
+    if args.runs == 0 {
+        eprintln!("error: --runs must be at least 1");
+        return ExitCode::from(EXIT_INVALID_CONFIG);
+    }
+    let Some((model, registry)) = load(&args.file, args.json) else {
+        return ExitCode::from(EXIT_INVALID_CONFIG);
+    };
+    let options = |seed: u64| SimOptions {
+        path: args.path,
+        wind_speed_m_s: args.wind_m_s,
+        wind_kind: if args.dryden {
+            WindKind::Dryden
+        } else {
+            WindKind::Gusts
+        },
+        platform_speed_m_s: args.platform_speed_m_s,
+        seed,
+        tracking_s: args.tracking_s,
+        fixed_levels: args.fixed_levels.clone(),
+        faults: Faults::default(),
+        record_track: args.svg.is_some(),
+        ..SimOptions::default()
+    };
+    if args.runs == 1 {
+        let outcome = match simulate(&model, &registry, &options(args.seed)) {
+            Ok(outcome) => outcome,
+            Err(error) => {
+                eprintln!("error: {error}");
+                return ExitCode::FAILURE;
+            }
+        };
+        if args.json {
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&outcome).expect("outcomes serialise")
+            );
+        } else {
+            print!("{}", report(&outcome));
+        }
+        if let Some(svg) = &args.svg {
+            match crate::plot::mission_svg(&outcome)
+                .and_then(|doc| std::fs::write(svg, doc).map_err(|e| e.to_string()))
+            {
+                Ok(()) => eprintln!("wrote {}", svg.display()),
+                Err(error) => {
+                    eprintln!("error: cannot write {}: {error}", svg.display());
+                    return ExitCode::FAILURE;
+                }
+            }
+        }
+        return if outcome.landed_on_pad {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(EXIT_NOT_LANDED)
+        };
+    }
+    let bar = ProgressBar::new(args.runs as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} runs, {elapsed} elapsed, ETA {eta}")
+            .expect("a valid template"),
+    );
+    let mut outcomes = Vec::with_capacity(args.runs);
+    for run in 0..args.runs as u64 {
+        match simulate(&model, &registry, &options(args.seed + run)) {
+            Ok(outcome) => outcomes.push(outcome),
+            Err(error) => {
+                bar.abandon();
+                eprintln!("error: seed {}: {error}", args.seed + run);
+                return ExitCode::FAILURE;
+            }
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let summary = SimSummary::of(&outcomes);
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                "summary": summary,
+                "runs": outcomes,
+            }))
+            .expect("outcomes serialise")
+        );
+    } else {
+        print!("{}", summary_report(&summary, args));
+    }
+    if summary.success_rate > 0.0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(EXIT_NOT_LANDED)
+    }
+}
+
+fn load(file: &Path, json: bool) -> Option<(MissionModel, PluginRegistry)> {
+    let registry = match builtin_registry() {
+        Ok(registry) => registry,
+        Err(error) => {
+            eprintln!("error: {error}");
+            return None;
+        }
+    };
+    // The full catalogue: a task whose plugin this build lacks is reported and flown without.
+    let loaded = match load_file(file, &runtime::catalog::PluginCatalog::builtin()) {
+        Ok(loaded) => loaded,
+        Err(failure) => {
+            report_failure(&failure, json);
+            return None;
+        }
+    };
+    match load_mission_model(&loaded) {
+        Ok(model) => Some((model, registry)),
+        Err(reports) => {
+            for report in &reports {
+                report_failure(report, json);
+            }
+            None
+        }
+    }
+}
+
+fn fmt_opt(value: Option<f64>, unit: &str, digits: usize) -> String {
+    value.map_or_else(|| "—".into(), |v| format!("{v:.digits$} {unit}"))
+}
+
+/// One run, for people.
+pub fn report(outcome: &SimOutcome) -> String {
+    let mut out = String::new();
+    let verdict = match (outcome.landed_on_pad, outcome.touched_down) {
+        (true, _) => "landed on the pad",
+        (false, true) => "touched down OFF the pad",
+        (false, false) => "did not land",
+    };
+    out += &format!("mission (seed {}): {verdict}\n", outcome.seed);
+    out += &format!(
+        "  touchdown error      {}\n",
+        fmt_opt(outcome.touchdown_error_m, "m", 3)
+    );
+    out += &format!(
+        "  time to land         {} (from the start of the landing phase)\n",
+        fmt_opt(outcome.time_to_land_s, "s", 1)
+    );
+    out += &format!("  mission time         {:.1} s\n", outcome.mission_time_s);
+    out += &format!(
+        "  energy used          {:.2} Wh flight + {:.2} Wh companion\n",
+        outcome.flight_energy_wh, outcome.companion_energy_wh
+    );
+    out += &format!(
+        "  battery left         {:.1} %\n",
+        100.0 * outcome.battery_left_fraction
+    );
+    out += &format!("  landing aborts       {}\n", outcome.landing_aborts);
+    out += &match outcome.hazards_seen {
+        Some(seen) => format!("  hazards seen         {seen}/{}\n", outcome.hazards_total),
+        None => format!(
+            "  hazards seen         —/{} (no hazard detector ran)\n",
+            outcome.hazards_total
+        ),
+    };
+    out += &format!("  simulated            {:.1}× real time\n", outcome.speedup);
+    for skipped in &outcome.skipped_tasks {
+        out += &format!("  not flown            task {skipped}\n");
+    }
+    out += &format!("QoS changes ({}):\n", outcome.qos_changes.len());
+    for change in &outcome.qos_changes {
+        out += &format!("  {:>7.1} s  {}\n", change.time_s, change.description);
+    }
+    out += "events:\n";
+    for (time_s, event) in &outcome.events {
+        out += &format!("  {time_s:>7.1} s  {event}\n");
+    }
+    out
+}
+
+fn summary_report(summary: &SimSummary, args: &SimArgs) -> String {
+    let mut out = format!(
+        "{} runs, path {}, wind {} m/s{}, tractor {} m/s\n",
+        summary.runs,
+        args.path,
+        args.wind_m_s,
+        if args.dryden { " (Dryden)" } else { "" },
+        args.platform_speed_m_s
+    );
+    out += &format!(
+        "  success rate         {:.1} %\n",
+        100.0 * summary.success_rate
+    );
+    out += &format!(
+        "  touchdown error      p50 {}, p95 {}\n",
+        fmt_opt(summary.touchdown_error_p50_m, "m", 3),
+        fmt_opt(summary.touchdown_error_p95_m, "m", 3)
+    );
+    out += &format!(
+        "  time to land p50     {}\n",
+        fmt_opt(summary.time_to_land_p50_s, "s", 1)
+    );
+    out += &format!(
+        "  energy (mean)        {:.2} Wh, of which companion {:.2} Wh\n",
+        summary.energy_mean_wh, summary.companion_energy_mean_wh
+    );
+    out
+}
