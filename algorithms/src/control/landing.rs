@@ -289,6 +289,10 @@ pub struct LandingInput {
     /// Whether the mission allows the descent now; while false the machine follows at its
     /// height and never leaves Follow for Descend (e.g. the tracking phase before landing).
     pub descent_allowed: bool,
+    /// Where the tracker predicts the UAV is relative to the pad (UAV − pad, NE) when no fix
+    /// is usable: Reacquire flies towards it rather than only matching the platform's speed,
+    /// so a vehicle left behind (a link loss, a blind camera) catches up.
+    pub predicted_uav_minus_pad_ne_m: Option<Vector2<f64>>,
 }
 
 /// One step's output.
@@ -318,6 +322,11 @@ impl LandingOutput {
         }
     }
 }
+
+/// Reacquire's pull towards the predicted pad position, per second of offset…
+const REACQUIRE_GAIN_PER_S: f64 = 0.5;
+/// …and its limit on top of the platform's velocity.
+const REACQUIRE_MAX_CATCH_UP_M_S: f64 = 3.0;
 
 /// The landing state machine with its horizontal controller.
 pub struct LandingController {
@@ -522,11 +531,19 @@ impl Machine {
                 let down = if centred { c.descent_speed_m_s } else { 0.0 };
                 (h, down, false)
             }
-            LandingMode::Reacquire => (
-                input.platform_velocity_ne_m_s,
-                self.hold_height(height_m, c.initial_height_m),
-                false,
-            ),
+            LandingMode::Reacquire => {
+                let catch_up = input
+                    .predicted_uav_minus_pad_ne_m
+                    .filter(|p| p.iter().all(|v| v.is_finite()))
+                    .map_or_else(Vector2::zeros, |p| {
+                        clamp_norm(-p * REACQUIRE_GAIN_PER_S, REACQUIRE_MAX_CATCH_UP_M_S)
+                    });
+                (
+                    input.platform_velocity_ne_m_s + catch_up,
+                    self.hold_height(height_m, c.initial_height_m),
+                    false,
+                )
+            }
             LandingMode::FinalLanding => {
                 let h = tracking_velocity(self)?;
                 (h, c.final_descent_speed_m_s, true)
@@ -707,6 +724,7 @@ mod tests {
             touchdown_detected: false,
             uav_velocity_ne_m_s: Vector2::new(3.0, 0.0),
             descent_allowed: true,
+            predicted_uav_minus_pad_ne_m: None,
         }
     }
 
@@ -851,6 +869,19 @@ mod tests {
         assert_eq!(out.mode, LandingMode::Reacquire);
         assert_eq!(out.velocity_setpoint_ned_m_s.z, -1.0);
         assert!(!out.land_command);
+        // With the tracker's prediction of where the pad went, Reacquire flies towards it:
+        // 0.5 /s of the offset on top of the platform's 3 m/s, at most 3 m/s more.
+        for (behind_m, expected_m_s) in [(2.0, 4.0), (10.0, 6.0)] {
+            t_s += DT_S;
+            let mut i = input(t_s, None, 4.0);
+            i.predicted_uav_minus_pad_ne_m = Some(Vector2::new(-behind_m, 0.0));
+            let out = c.step(&i).unwrap();
+            assert_eq!(out.mode, LandingMode::Reacquire);
+            assert!(
+                (out.velocity_setpoint_ned_m_s.x - expected_m_s).abs() < 1e-9,
+                "{out:?}"
+            );
+        }
         // Seen again: Follow, holding IH.
         let out = run(&mut c, &mut t_s, DT_S, Some(0.0), 5.0);
         assert_eq!(out.mode, LandingMode::Follow);

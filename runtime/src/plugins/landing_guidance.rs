@@ -36,6 +36,12 @@ struct Params {
     /// A relative state older than this counts as no fix.
     #[serde(default = "default_max_age")]
     max_fix_age_s: f64,
+    /// The tracker bridges gaps between vision fixes by prediction; a prediction whose last
+    /// vision fix is older than this counts as no fix (a frozen or blind camera), so the
+    /// landing aborts instead of descending on dead reckoning. Longer than the slowest
+    /// detection period.
+    #[serde(default = "default_max_vision_gap")]
+    max_vision_gap_s: f64,
     #[serde(default)]
     controller: ControllerKind,
     /// The MPC's horizon in seconds; its step count follows from the QoS period.
@@ -81,6 +87,9 @@ fn default_final() -> f64 {
 fn default_max_age() -> f64 {
     0.5
 }
+fn default_max_vision_gap() -> f64 {
+    3.0
+}
 
 pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
     super::register_builtin(registry, PLUGIN_NAME, GuidanceTask::new)
@@ -89,6 +98,7 @@ pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
 struct GuidanceTask {
     controller: LandingController,
     max_fix_age_s: f64,
+    max_vision_gap_s: f64,
     descend_in_phase: String,
     vehicle: Option<Subscriber<VehicleState>>,
     phase: Option<Subscriber<MissionPhase>>,
@@ -133,6 +143,7 @@ impl GuidanceTask {
         Ok(Self {
             controller,
             max_fix_age_s: params.max_fix_age_s,
+            max_vision_gap_s: params.max_vision_gap_s,
             descend_in_phase: params.descend_in_phase,
             vehicle: None,
             phase: None,
@@ -172,6 +183,10 @@ impl Task for GuidanceTask {
         let latest = relative.latest().map(|m| m.value);
         let fix = latest
             .filter(|r| now_s - r.estimate.time_s <= self.max_fix_age_s)
+            .filter(|r| {
+                r.last_fix_time_s
+                    .is_some_and(|fix_s| now_s - fix_s <= self.max_vision_gap_s)
+            })
             .map(|r| RelativeFix {
                 uav_minus_pad_ned_m: r.estimate.uav_relative_ned_m,
                 covariance_ned_m2: r.estimate.covariance_m2,
@@ -193,6 +208,9 @@ impl Task for GuidanceTask {
             touchdown_detected: state.landed,
             uav_velocity_ne_m_s: state.velocity_ned_m_s.xy(),
             descent_allowed,
+            predicted_uav_minus_pad_ne_m: latest
+                .filter(|r| now_s - r.estimate.time_s <= self.max_fix_age_s)
+                .map(|r| r.estimate.uav_relative_ned_m.xy()),
         });
         match step {
             Ok(out) => {
