@@ -63,6 +63,11 @@ enum Command {
         /// Draw the vehicle's and the tractor's tracks and the battery over time as SVG.
         #[arg(long, value_name = "PATH")]
         svg: Option<PathBuf>,
+        /// Evaluate landings: every landing-marker rate × wind {0, 8, 12} m/s × path {straight,
+        /// figure8, turn180}, --runs seeds per cell (tracking shortened to 5 s unless
+        /// --tracking-s says otherwise), as a table.
+        #[arg(long)]
+        evaluate: bool,
     },
     /// Validate a mission's QoS config and print a summary of it.
     Check {
@@ -158,6 +163,7 @@ fn main() -> ExitCode {
             fixed_levels,
             json,
             svg,
+            evaluate,
         } => sim::run(&sim::SimArgs {
             file,
             path,
@@ -170,6 +176,7 @@ fn main() -> ExitCode {
             fixed_levels,
             json,
             svg,
+            evaluate,
         }),
         Command::Detect {
             images,

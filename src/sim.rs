@@ -25,6 +25,8 @@ pub struct SimArgs {
     pub fixed_levels: Vec<(String, f64)>,
     pub json: bool,
     pub svg: Option<PathBuf>,
+    /// Run the evaluation grid instead of one mission.
+    pub evaluate: bool,
 }
 
 /// Exit status when the mission did not land on the pad (or no run of many did).
@@ -52,6 +54,9 @@ pub fn run(args: &SimArgs) -> ExitCode {
     let Some((model, registry)) = load(&args.file, args.json) else {
         return ExitCode::from(EXIT_INVALID_CONFIG);
     };
+    if args.evaluate {
+        return evaluate(&model, &registry, args);
+    }
     let options = |seed: u64| SimOptions {
         path: args.path,
         wind_speed_m_s: args.wind_m_s,
@@ -245,5 +250,133 @@ fn summary_report(summary: &SimSummary, args: &SimArgs) -> String {
         "  energy (mean)        {:.2} Wh, of which companion {:.2} Wh\n",
         summary.energy_mean_wh, summary.companion_energy_mean_wh
     );
+    out
+}
+
+/// The landing evaluation the seed only planned: every landing-marker rate × wind × path,
+/// `args.runs` seeds per cell, on all cores.
+fn evaluate(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> ExitCode {
+    let Some(detection) = model
+        .config
+        .tasks
+        .iter()
+        .find(|t| t.plugin == "landing_marker")
+    else {
+        eprintln!("error: --evaluate needs a landing_marker task in the config");
+        return ExitCode::from(EXIT_INVALID_CONFIG);
+    };
+    let mut cells = Vec::new();
+    for &rate in &detection.levels {
+        for wind_m_s in [0.0, 8.0, 12.0] {
+            for path in [PathKind::Straight, PathKind::FigureEight, PathKind::Turn180] {
+                cells.push((rate, wind_m_s, path));
+            }
+        }
+    }
+    let jobs: Vec<(usize, u64)> = (0..cells.len())
+        .flat_map(|cell| (0..args.runs as u64).map(move |run| (cell, args.seed + run)))
+        .collect();
+    let bar = ProgressBar::new(jobs.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} missions, {elapsed} elapsed, ETA {eta}")
+            .expect("a valid template"),
+    );
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results = std::sync::Mutex::new(vec![Vec::new(); cells.len()]);
+    let failure = std::sync::Mutex::new(None);
+    std::thread::scope(|scope| {
+        for _ in 0..workers {
+            scope.spawn(|| loop {
+                let index = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(&(cell, seed)) = jobs.get(index) else {
+                    break;
+                };
+                let (rate, wind_m_s, path) = cells[cell];
+                let options = SimOptions {
+                    path,
+                    wind_speed_m_s: wind_m_s,
+                    wind_kind: if args.dryden {
+                        WindKind::Dryden
+                    } else {
+                        WindKind::Gusts
+                    },
+                    platform_speed_m_s: args.platform_speed_m_s,
+                    seed,
+                    tracking_s: Some(args.tracking_s.unwrap_or(EVALUATION_TRACKING_S)),
+                    fixed_levels: vec![(detection.name.clone(), rate)],
+                    ..SimOptions::default()
+                };
+                match simulate(model, registry, &options) {
+                    Ok(outcome) => results.lock().expect("no worker panics")[cell].push(outcome),
+                    Err(error) => {
+                        *failure.lock().expect("no worker panics") =
+                            Some(format!("seed {seed}: {error}"));
+                        break;
+                    }
+                }
+                bar.inc(1);
+            });
+        }
+    });
+    bar.finish_and_clear();
+    if let Some(error) = failure.into_inner().expect("no worker panics") {
+        eprintln!("error: {error}");
+        return ExitCode::FAILURE;
+    }
+    let results = results.into_inner().expect("no worker panics");
+    let rows: Vec<(f64, f64, PathKind, SimSummary)> = cells
+        .iter()
+        .zip(&results)
+        .map(|(&(rate, wind, path), outcomes)| (rate, wind, path, SimSummary::of(outcomes)))
+        .collect();
+    if args.json {
+        let rows: Vec<_> = rows
+            .iter()
+            .map(|(rate, wind, path, summary)| {
+                serde_json::json!({
+                    "detection_rate_fps": rate,
+                    "wind_m_s": wind,
+                    "path": path.to_string(),
+                    "summary": summary,
+                })
+            })
+            .collect();
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&rows).expect("summaries serialise")
+        );
+    } else {
+        print!("{}", evaluation_table(&rows, args));
+    }
+    ExitCode::SUCCESS
+}
+
+/// The tracking phase of an evaluation mission: long enough for the tracker to settle.
+const EVALUATION_TRACKING_S: f64 = 5.0;
+
+fn evaluation_table(rows: &[(f64, f64, PathKind, SimSummary)], args: &SimArgs) -> String {
+    let mut out = format!(
+        "{} seeds per cell from seed {}, tractor at {} m/s, {} wind\n\n",
+        args.runs,
+        args.seed,
+        args.platform_speed_m_s,
+        if args.dryden { "Dryden" } else { "gust" }
+    );
+    out += "| marker rate (fps) | wind (m/s) | path | success | touchdown error p50 / p95 (m) | time to land p50 (s) | energy (Wh) | of which companion (Wh) |\n";
+    out += "| --- | --- | --- | --- | --- | --- | --- | --- |\n";
+    for (rate, wind, path, s) in rows {
+        let metres = |v: Option<f64>| v.map_or_else(|| "—".into(), |v| format!("{v:.3}"));
+        out += &format!(
+            "| {rate} | {wind} | {path} | {:.0} % | {} / {} | {} | {:.2} | {:.3} |\n",
+            100.0 * s.success_rate,
+            metres(s.touchdown_error_p50_m),
+            metres(s.touchdown_error_p95_m),
+            s.time_to_land_p50_s
+                .map_or_else(|| "—".into(), |v| format!("{v:.1}")),
+            s.energy_mean_wh,
+            s.companion_energy_mean_wh
+        );
+    }
     out
 }

@@ -160,8 +160,9 @@ pub fn simulate(
         speed_m_s: options.platform_speed_m_s,
         ..TractorParams::default()
     };
-    let mut tractor =
-        Tractor::new(options.path, tractor_params, meeting, 0.0).map_err(|e| setup(&e))?;
+    let mut tractor = Tractor::new(options.path, tractor_params, meeting, 0.0)
+        .map_err(|e| setup(&e))?
+        .parked();
     let mut vehicle =
         Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(|e| setup(&e))?;
     let wind_config = match (options.wind_speed_m_s > 0.0, options.wind_kind) {

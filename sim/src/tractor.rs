@@ -522,6 +522,13 @@ impl Tractor {
         self.path.closed.then(|| self.path.length_m())
     }
 
+    /// The same tractor parked: it pulls away within its acceleration limit once stepped (a
+    /// tractor waiting for the drone at the meeting point).
+    pub fn parked(mut self) -> Self {
+        self.speed_m_s = 0.0;
+        self
+    }
+
     /// Distance driven since the start.
     pub fn distance_driven_m(&self) -> f64 {
         self.distance_driven_m
@@ -795,5 +802,25 @@ mod tests {
         let mut t = tractor(PathKind::Circle);
         assert!(t.step(-1.0).is_err());
         assert!(t.step(f64::NAN).is_err());
+    }
+
+    #[test]
+    fn a_parked_tractor_pulls_away_within_its_acceleration_limit() {
+        let params = TractorParams::default();
+        let mut tractor = Tractor::new(PathKind::Straight, params, [0.0, 0.0], 0.0)
+            .unwrap()
+            .parked();
+        assert_eq!(tractor.pose().speed_m_s, 0.0);
+        let dt_s = 0.01;
+        for _ in 0..100 {
+            tractor.step(dt_s).unwrap();
+        }
+        // 1 s at 0.5 m/s²: 0.5 m/s and 0.25 m driven.
+        assert!((tractor.pose().speed_m_s - 0.5).abs() < 1e-9);
+        assert!((tractor.distance_driven_m() - 0.25).abs() < 0.01);
+        for _ in 0..1000 {
+            tractor.step(dt_s).unwrap();
+        }
+        assert!((tractor.pose().speed_m_s - params.speed_m_s).abs() < 1e-9);
     }
 }

@@ -75,14 +75,15 @@ fn the_same_seed_flies_the_same_mission() {
     assert!(first.touched_down);
 }
 
-/// The link drops for 3 s while following: the runtime notices, sends nothing, PX4's own
-/// offboard-loss failsafe holds the vehicle; the link returns, offboard is re-entered, and the
-/// mission lands.
+/// The link drops for 2 s while following: the runtime notices, sends nothing, PX4's own
+/// offboard-loss failsafe holds the vehicle; the link returns, offboard is re-entered, the
+/// tracker catches up with the pad it fell behind, and the mission lands.
 #[test]
 fn a_lost_mavlink_link_triggers_the_failsafe_and_the_mission_recovers() {
     let outcome = fly(SimOptions {
+        tracking_s: Some(15.0),
         faults: Faults {
-            link_loss: Some((1.0, 4.0)),
+            link_loss: Some((8.0, 10.0)),
             ..Faults::default()
         },
         ..short(2)
@@ -99,8 +100,9 @@ fn a_lost_mavlink_link_triggers_the_failsafe_and_the_mission_recovers() {
         .find(|(_, e)| e.contains("link restored"))
         .map(|(t, _)| *t)
         .expect("the link came back");
+    // Noticed by the 0.5 s telemetry timeout; back with the first heartbeat after the window.
     assert!(
-        restored - lost >= 2.0,
+        (1.0..=2.5).contains(&(restored - lost)),
         "lost {lost} s, restored {restored} s"
     );
     let offboard_again = outcome

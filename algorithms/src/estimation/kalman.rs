@@ -47,6 +47,10 @@ pub struct TrackerConfig {
     pub gate_nis: f64,
     /// How far back a late fix may be applied, seconds.
     pub history_s: f64,
+    /// After this many fixes in a row are gated out, the filter restarts from the latest: the
+    /// fixes agree with each other, not with the prediction, so the prediction is what is
+    /// wrong (a platform that started moving between two slow fixes). 0 never restarts.
+    pub restart_after_rejections: u32,
 }
 
 impl Default for TrackerConfig {
@@ -55,6 +59,7 @@ impl Default for TrackerConfig {
             process_noise_m2_per_s: 0.05,
             gate_nis: CHI2_3DOF_99,
             history_s: 0.5,
+            restart_after_rejections: 2,
         }
     }
 }
@@ -93,6 +98,9 @@ pub enum FixOutcome {
     Accepted { nis: f64 },
     /// Gated out as an outlier; the state is unchanged.
     Rejected { nis: f64 },
+    /// The last of [`TrackerConfig::restart_after_rejections`] gated fixes in a row: the state
+    /// restarted from it, with the fix's covariance.
+    Restarted { nis: f64 },
     /// Older than the history, or older than a fix already applied: ignored (applying it would
     /// double-count what the later fix already told us).
     Stale,
@@ -105,6 +113,8 @@ pub struct Tracker {
     /// States at past prediction times, oldest first; the last is the current estimate.
     history: VecDeque<RelativeEstimate>,
     last_fix_time_s: f64,
+    /// Fixes gated out since the last accepted one.
+    rejections_in_a_row: u32,
 }
 
 impl Tracker {
@@ -127,6 +137,7 @@ impl Tracker {
             config,
             history: VecDeque::new(),
             last_fix_time_s: f64::NEG_INFINITY,
+            rejections_in_a_row: 0,
         })
     }
 
@@ -230,8 +241,24 @@ impl Tracker {
         };
         let nis = innovation.dot(&s_chol.solve(&innovation));
         if nis > self.config.gate_nis {
+            self.rejections_in_a_row += 1;
+            let restart = self.config.restart_after_rejections;
+            if restart > 0 && self.rejections_in_a_row >= restart {
+                // Restart at the fix, carried to the present by the motion since its capture.
+                let carried = now.uav_relative_ned_m - at_capture.uav_relative_ned_m;
+                self.history.clear();
+                self.history.push_back(RelativeEstimate {
+                    time_s: now.time_s,
+                    uav_relative_ned_m: fix.uav_relative_ned_m + carried,
+                    covariance_m2: r,
+                });
+                self.last_fix_time_s = fix.capture_time_s;
+                self.rejections_in_a_row = 0;
+                return Ok(FixOutcome::Restarted { nis });
+            }
             return Ok(FixOutcome::Rejected { nis });
         }
+        self.rejections_in_a_row = 0;
         // K = P·S⁻¹ (H = I); S is symmetric, so K = (S⁻¹·P)ᵀ.
         let gain = s_chol.solve(&p).transpose();
         let shift = gain * innovation;
@@ -593,6 +620,51 @@ mod tests {
         let est = tracker.estimate().unwrap();
         assert!((est.uav_relative_ned_m.x - (1.0 + 0.1 * k)).abs() < 1e-12);
         assert!((est.covariance_m2[(0, 0)] - (1.0 - k) * p).abs() < 1e-12);
+    }
+
+    /// A platform that starts moving while fixes are slow: the prediction lags, every fix
+    /// is gated, and after two in a row the filter restarts at the latest one (carried to
+    /// the present), then accepts the next consistent fix. Restarts can be switched off.
+    #[test]
+    fn persistent_rejections_restart_the_filter_at_the_fixes() {
+        let cov = Matrix3::identity() * 0.01;
+        let fix = |t: f64, north_m: f64| VisionFix {
+            capture_time_s: t,
+            uav_relative_ned_m: Vector3::new(north_m, 0.0, -7.5),
+            covariance_m2: cov,
+        };
+        for restart_after_rejections in [2, 0] {
+            let config = TrackerConfig {
+                restart_after_rejections,
+                ..TrackerConfig::default()
+            };
+            let mut tracker = Tracker::new(config).unwrap();
+            tracker.correct(&fix(0.0, 0.0)).unwrap();
+            // The UAV hovers; the platform runs away north at 1.5 m/s, fixes every 0.5 s.
+            let mut outcomes = Vec::new();
+            for k in 1..=4 {
+                let t = 0.5 * k as f64;
+                tracker.predict(t + 0.05, &MotionInput::default()).unwrap();
+                outcomes.push(tracker.correct(&fix(t, -1.5 * t)).unwrap());
+            }
+            if restart_after_rejections == 0 {
+                assert!(outcomes
+                    .iter()
+                    .all(|o| matches!(o, FixOutcome::Rejected { .. })));
+                continue;
+            }
+            assert!(
+                matches!(outcomes[0], FixOutcome::Rejected { .. }),
+                "{outcomes:?}"
+            );
+            assert!(matches!(outcomes[1], FixOutcome::Restarted { .. }));
+            // The count starts over after a restart: the next gated fix is only rejected.
+            assert!(matches!(outcomes[2], FixOutcome::Rejected { .. }));
+            assert!(matches!(outcomes[3], FixOutcome::Restarted { .. }));
+            // Restarted at the 2 s fix (−3 m); no motion input, nothing carried since.
+            let est = tracker.estimate().unwrap();
+            assert!((est.uav_relative_ned_m.x + 3.0).abs() < 1e-9, "{est:?}");
+        }
     }
 
     #[test]

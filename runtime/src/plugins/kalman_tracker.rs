@@ -91,8 +91,12 @@ impl TrackerTask {
             camera,
             fix_variance_m2: params.fix_std_m.powi(2),
             tracker,
-            platform: PlatformVelocityEstimator::new(PlatformVelocityConfig::default())
-                .map_err(|e| bad(&e))?,
+            platform: PlatformVelocityEstimator::new(PlatformVelocityConfig {
+                // Fixes come 2 s apart at the slowest detection rate (0.5 fps).
+                max_gap_s: 3.0,
+                ..PlatformVelocityConfig::default()
+            })
+            .map_err(|e| bad(&e))?,
             last_fix_time_s: None,
             vehicle: None,
             markers: None,
@@ -156,9 +160,20 @@ impl Task for TrackerTask {
                             .tracker
                             .correct(&fix)
                             .map_err(|e| TaskError::failed(e.to_string()))?;
+                        if let FixOutcome::Restarted { nis } = outcome {
+                            // The platform estimator only ever saw accepted fixes, which were
+                            // right; it carries on.
+                            tracing::info!(
+                                task = ctx.name(),
+                                nis,
+                                "tracker restarted at the vision fixes"
+                            );
+                        }
                         if matches!(
                             outcome,
-                            FixOutcome::Initialized | FixOutcome::Accepted { .. }
+                            FixOutcome::Initialized
+                                | FixOutcome::Accepted { .. }
+                                | FixOutcome::Restarted { .. }
                         ) {
                             self.last_fix_time_s = Some(capture_time_s);
                             let _ = self.platform.update(&PlatformFix {
