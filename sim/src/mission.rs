@@ -118,7 +118,7 @@ pub enum SimError {
 
 /// Time allowed beyond the configured mission before the simulation gives up: take-off,
 /// transit and a few landing attempts.
-pub const TIME_MARGIN_S: f64 = 240.0;
+pub const TIME_MARGIN_S: f64 = 120.0;
 
 /// Where the tractor waits for the vehicle, north of the take-off point.
 const MEETING_POINT_NORTH_M: f64 = 15.0;
@@ -130,6 +130,17 @@ pub fn simulate(
     options: &SimOptions,
 ) -> Result<SimOutcome, SimError> {
     let wall_start = Instant::now();
+    // The governor plans for the tracking time actually flown.
+    let mut adjusted = model.clone();
+    if let Some(tracking_s) = options.tracking_s {
+        let count = adjusted.config.mission.phases.len();
+        for (i, phase) in adjusted.config.mission.phases.iter_mut().enumerate() {
+            if i > 0 && i + 1 < count {
+                phase.duration_s = tracking_s;
+            }
+        }
+    }
+    let model = &adjusted;
     let config = &model.config;
     let setup = |e: &dyn std::fmt::Display| SimError::Setup(e.to_string());
 
@@ -311,7 +322,7 @@ pub fn simulate(
                         }
                         qos_changes.push(QosChange {
                             time_s,
-                            description: describe(&event),
+                            description: describe(model, &event),
                         });
                     }
                     apply_levels(&mut scheduler, model, &governor, &fixed)?;
@@ -656,10 +667,52 @@ fn pad_pose(tractor: &Tractor) -> PadPose {
     }
 }
 
-fn describe(event: &GovernorEvent) -> String {
+/// A governor event in one line: which task moved between which knob values, why, and the
+/// energy behind it.
+fn describe(model: &MissionModel, event: &GovernorEvent) -> String {
+    let tasks = &model.config.tasks;
     match event {
-        GovernorEvent::LevelsChanged(change) => format!("levels changed: {change:?}"),
-        GovernorEvent::LandNow(land) => format!("land now: {land:?}"),
+        GovernorEvent::LevelsChanged(change) => {
+            let (old, new) = (
+                change.old_levels.first().map(Vec::as_slice).unwrap_or(&[]),
+                change.new_levels.first().map(Vec::as_slice).unwrap_or(&[]),
+            );
+            let moves: Vec<String> = new
+                .iter()
+                .filter_map(|after| {
+                    let before = old.iter().find(|b| b.task == after.task)?;
+                    let task = tasks.get(after.task)?;
+                    (before.level != after.level).then(|| {
+                        format!(
+                            "{} {} → {} {}",
+                            task.name,
+                            task.levels[before.level],
+                            task.levels[after.level],
+                            task.knob
+                        )
+                    })
+                })
+                .collect();
+            let moves = if moves.is_empty() {
+                "later phases' levels".to_string()
+            } else {
+                moves.join(", ")
+            };
+            format!(
+                "{moves}: {} ({}); utility {:.2} → {:.2}, energy to go {:.2} → {:.2} Wh of {:.2} Wh available",
+                change.reason,
+                change.trigger,
+                change.old_utility,
+                change.new_utility,
+                change.old_energy_wh,
+                change.new_energy_wh,
+                change.available_wh
+            )
+        }
+        GovernorEvent::LandNow(land) => format!(
+            "land now: the cheapest levels need {:.2} Wh, {:.2} Wh available (short by {:.2} Wh)",
+            land.needed_wh, land.available_wh, land.shortfall_wh
+        ),
         GovernorEvent::ReplanFailed { time_s, message } => {
             format!("re-plan failed at {time_s:.1} s: {message}")
         }
