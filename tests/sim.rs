@@ -1,0 +1,77 @@
+//! End-to-end tests of `qosrt sim`: the binary flies the reference mission (tracking shortened)
+//! and refuses bad arguments with a clear message.
+
+use std::process::{Command, Output};
+
+fn qosrt(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_qosrt"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("the qosrt binary runs")
+}
+
+#[test]
+fn the_reference_mission_lands_and_reports_as_json_and_svg() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("mission.svg");
+    let out = qosrt(&[
+        "sim",
+        "--tracking-s",
+        "5",
+        "--seed",
+        "4",
+        "--json",
+        "--svg",
+        svg.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let outcome: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(outcome["landed_on_pad"], true, "{outcome:#}");
+    assert_eq!(outcome["seed"], 4);
+    assert!(outcome["touchdown_error_m"].as_f64().unwrap() <= 0.15);
+    assert!(outcome["flight_energy_wh"].as_f64().unwrap() > 0.5);
+    let document = std::fs::read_to_string(&svg).unwrap();
+    assert!(document.starts_with("<svg") && document.contains("tractor"));
+}
+
+#[test]
+fn bad_arguments_are_named_and_refused() {
+    for (args, expected) in [
+        (vec!["sim", "--wind-mps=-3"], "--wind-mps"),
+        (
+            vec!["sim", "--platform-speed-mps", "40"],
+            "--platform-speed-mps",
+        ),
+        (vec!["sim", "--runs", "0"], "--runs"),
+        (vec!["sim", "--path", "zigzag"], "figure8"),
+        (vec!["sim", "--fix", "detection"], "TASK=VALUE"),
+    ] {
+        let out = qosrt(&args);
+        assert!(!out.status.success(), "{args:?} was accepted");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+    }
+    // A task or level the config does not have: named, with what there is.
+    let out = qosrt(&["sim", "--tracking-s", "1", "--fix", "detection=3"]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("detection=3") && stderr.contains("[0.5, 1.0, 2.0, 10.0]"),
+        "{stderr}"
+    );
+    let out = qosrt(&["sim", "--tracking-s", "1", "--fix", "lidar=1"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("no such task") && stderr.contains("detection"),
+        "{stderr}"
+    );
+    // A config that does not exist: the file is named.
+    let out = qosrt(&["sim", "missing.toml"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("missing.toml"));
+}
