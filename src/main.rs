@@ -64,7 +64,7 @@ enum Command {
         #[arg(long, value_name = "PATH")]
         svg: Option<PathBuf>,
         /// Evaluate landings: every landing-marker rate × wind {0, 8, 12} m/s × path {straight,
-        /// figure8, turn180}, --runs seeds per cell (tracking shortened to 5 s unless
+        /// figure8, turn180}, --runs seeds per cell (tracking shortened to 15 s unless
         /// --tracking-s says otherwise), as a table.
         #[arg(long)]
         evaluate: bool,

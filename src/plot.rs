@@ -195,7 +195,7 @@ mod tests {
 
     #[test]
     fn the_mission_svg_draws_both_tracks_and_refuses_an_empty_one() {
-        let mut outcome = empty_outcome();
+        let mut outcome = sim::outcome::SimOutcome::default();
         assert!(mission_svg(&outcome).is_err());
         outcome.track = (0..10)
             .map(|i| sim::outcome::TrackSample {
@@ -213,27 +213,5 @@ mod tests {
             svg.matches("<polyline").count() >= 3,
             "two tracks and the battery"
         );
-    }
-
-    fn empty_outcome() -> sim::outcome::SimOutcome {
-        sim::outcome::SimOutcome {
-            seed: 0,
-            landed_on_pad: false,
-            touched_down: false,
-            touchdown_error_m: None,
-            time_to_land_s: None,
-            mission_time_s: 0.0,
-            flight_energy_wh: 0.0,
-            companion_energy_wh: 0.0,
-            battery_left_fraction: 1.0,
-            landing_aborts: 0,
-            qos_changes: Vec::new(),
-            events: Vec::new(),
-            hazards_seen: None,
-            hazards_total: 0,
-            skipped_tasks: Vec::new(),
-            speedup: 1.0,
-            track: Vec::new(),
-        }
     }
 }

@@ -352,8 +352,10 @@ fn evaluate(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> 
     ExitCode::SUCCESS
 }
 
-/// The tracking phase of an evaluation mission: long enough for the tracker to settle.
-const EVALUATION_TRACKING_S: f64 = 5.0;
+/// The tracking phase of an evaluation mission. The tractor pulls away when tracking begins and
+/// the turn paths turn 30 m on, about 21 s later at 1.5 m/s: 15 s of tracking puts the turn in
+/// the middle of the landing.
+const EVALUATION_TRACKING_S: f64 = 15.0;
 
 fn evaluation_table(rows: &[(f64, f64, PathKind, SimSummary)], args: &SimArgs) -> String {
     let mut out = format!(

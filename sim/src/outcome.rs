@@ -21,7 +21,7 @@ pub struct TrackSample {
 }
 
 /// How one simulated mission went.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct SimOutcome {
     pub seed: u64,
     /// Touched down on the pad.
@@ -132,23 +132,13 @@ mod tests {
 
     fn outcome(on_pad: bool, error_m: f64, energy_wh: f64) -> SimOutcome {
         SimOutcome {
-            seed: 0,
             landed_on_pad: on_pad,
             touched_down: true,
             touchdown_error_m: Some(error_m),
             time_to_land_s: Some(30.0),
-            mission_time_s: 100.0,
             flight_energy_wh: energy_wh,
             companion_energy_wh: 1.0,
-            battery_left_fraction: 0.5,
-            landing_aborts: 0,
-            qos_changes: Vec::new(),
-            events: Vec::new(),
-            hazards_seen: None,
-            hazards_total: 0,
-            skipped_tasks: Vec::new(),
-            speedup: 1.0,
-            track: Vec::new(),
+            ..SimOutcome::default()
         }
     }
 
