@@ -502,7 +502,7 @@ impl SimScene {
 /// Texel of the baked field: finer than the camera's ground sampling distance at the heights where
 /// the field matters (1.35 cm a pixel at 7.5 m with the default camera), bilinear in between.
 pub const FIELD_TEXEL_M: f64 = 0.02;
-/// The baked part of the field reaches this far from the origin; beyond it the field is computed.
+/// The baked part of the field reaches this far from the origin; beyond it the field repeats.
 pub const FIELD_BAKED_HALF_EXTENT_M: f64 = 300.0;
 
 /// Texels a tile side; a tile is baked on the first sample that falls in it.
@@ -528,8 +528,13 @@ impl BakedTexture {
         let gn = (north_m - self.origin_m[0]) * self.texels_per_m;
         let ge = (east_m - self.origin_m[1]) * self.texels_per_m;
         let limit = self.limit_texels;
-        // Written so that NaN falls through to the source too.
-        if !(gn >= 0.0 && ge >= 0.0 && gn < limit && ge < limit) {
+        if !(gn.is_finite() && ge.is_finite()) {
+            return self.source.sample(north_m, east_m);
+        }
+        // Beyond the baked square the field repeats: a tractor drives kilometres in a long
+        // mission, and computing the field there would cost the renderer half its speed.
+        let (gn, ge) = (gn.rem_euclid(limit), ge.rem_euclid(limit));
+        if !(gn < limit && ge < limit) {
             return self.source.sample(north_m, east_m);
         }
         // In range and not negative: truncation is ⌊·⌋, and u32 conversions are cheap.
@@ -566,7 +571,7 @@ impl BakedTexture {
 }
 
 /// `source` (a function of world north, east) baked lazily on a grid of `texel_m` texels over
-/// the square of half-side `half_extent_m` around the origin, computed directly outside it. A bad
+/// the square of half-side `half_extent_m` around the origin, repeated periodically outside it. A bad
 /// texel or extent (not finite, not positive) gives `source` itself.
 pub fn baked_texture(source: Texture, texel_m: f64, half_extent_m: f64) -> Texture {
     if !(texel_m.is_finite() && texel_m > 0.0 && half_extent_m.is_finite() && half_extent_m > 0.0) {
@@ -820,14 +825,22 @@ mod tests {
             worst = worst.max((baked.sample(n, e) - source.sample(n, e)).abs());
         }
         assert!(worst < 1e-4, "at texels: {worst}");
-        // Between texels the bilinear value is close; outside the baked square, exact.
+        // Between texels the bilinear value is close.
         let mut sum = 0f32;
         for k in 0..500 {
             let (n, e) = (k as f64 * 0.0137 - 3.0, k as f64 * -0.0191 + 2.0);
             sum += (baked.sample(n, e) - source.sample(n, e)).abs();
         }
         assert!(sum / 500.0 < 0.03, "between texels: {}", sum / 500.0);
-        assert_eq!(baked.sample(50.0, -70.0), source.sample(50.0, -70.0));
+        // Outside the baked square the field repeats with the square's side as period.
+        let period_m = 2.0 * half_m;
+        for (n, e) in [(50.0, -70.0), (3.3, 1.7), (-9.9, 0.01)] {
+            let inside = baked.sample(n, e);
+            assert_eq!(baked.sample(n + period_m, e), inside);
+            assert_eq!(baked.sample(n - 3.0 * period_m, e + period_m), inside);
+        }
+        // A non-finite coordinate is the source's business, not a panic.
+        let _ = baked.sample(f64::NAN, 0.0);
     }
 
     #[test]
