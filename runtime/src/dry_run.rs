@@ -5,7 +5,7 @@
 //! anything flies.
 
 use crate::energy::MissionModel;
-use crate::governor::{Governor, GovernorEvent};
+use crate::governor::Governor;
 use crate::registry::PluginRegistry;
 use crate::scheduler::{RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats};
 use crate::telemetry::{BatteryTelemetry, MissionProgress};
@@ -142,7 +142,7 @@ pub fn dry_run(
             match governor.update(&sample, progress) {
                 Ok(events) => {
                     for event in events {
-                        governor_events.push(describe(&event));
+                        governor_events.push(event.describe(&config.tasks));
                     }
                     apply_levels(&scheduler, model, &governor)?;
                 }
@@ -187,16 +187,6 @@ fn apply_levels(
         }
     }
     Ok(())
-}
-
-fn describe(event: &GovernorEvent) -> String {
-    match event {
-        GovernorEvent::LevelsChanged(change) => format!("levels changed: {change:?}"),
-        GovernorEvent::LandNow(land) => format!("land now: {land:?}"),
-        GovernorEvent::ReplanFailed { time_s, message } => {
-            format!("re-plan failed at {time_s:.1} s: {message}")
-        }
-    }
 }
 
 /// The synthetic vehicle: hovering 5 m above the pad, slightly tilted.

@@ -340,6 +340,59 @@ pub enum GovernorEvent {
     },
 }
 
+impl GovernorEvent {
+    /// The event in one line for people: which task moved between which knob values, why, and
+    /// the energy behind it. `tasks` are the config's, in order.
+    pub fn describe(&self, tasks: &[crate::config::TaskConfig]) -> String {
+        match self {
+            GovernorEvent::LevelsChanged(change) => {
+                let (old, new) = (
+                    change.old_levels.first().map(Vec::as_slice).unwrap_or(&[]),
+                    change.new_levels.first().map(Vec::as_slice).unwrap_or(&[]),
+                );
+                let moves: Vec<String> = new
+                    .iter()
+                    .filter_map(|after| {
+                        let before = old.iter().find(|b| b.task == after.task)?;
+                        let task = tasks.get(after.task)?;
+                        (before.level != after.level).then(|| {
+                            format!(
+                                "{} {} → {} {}",
+                                task.name,
+                                task.levels[before.level],
+                                task.levels[after.level],
+                                task.knob
+                            )
+                        })
+                    })
+                    .collect();
+                let moves = if moves.is_empty() {
+                    "later phases' levels".to_string()
+                } else {
+                    moves.join(", ")
+                };
+                format!(
+                    "{moves}: {} ({}); utility {:.2} → {:.2}, energy to go {:.2} → {:.2} Wh of {:.2} Wh available",
+                    change.reason,
+                    change.trigger,
+                    change.old_utility,
+                    change.new_utility,
+                    change.old_energy_wh,
+                    change.new_energy_wh,
+                    change.available_wh
+                )
+            }
+            GovernorEvent::LandNow(land) => format!(
+                "land now: the cheapest levels need {:.2} Wh, {:.2} Wh available (short by {:.2} Wh)",
+                land.needed_wh, land.available_wh, land.shortfall_wh
+            ),
+            GovernorEvent::ReplanFailed { time_s, message } => {
+                format!("re-plan failed at {time_s:.1} s: {message}")
+            }
+        }
+    }
+}
+
 /// What a re-plan decided.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -1154,6 +1207,53 @@ mod tests {
     use power_models::battery::{BatterySpec, EstimatorConfig};
     use power_models::planner::{DurationByLevel, PlanTask, PowerTerm};
     use std::path::Path;
+
+    /// The one-line description names the task that moved and its knob values, read from the
+    /// config, and carries the reason and the energies.
+    #[test]
+    fn events_are_described_in_the_configs_words() {
+        let config = crate::config::load_str(
+            include_str!("../../qos.toml"),
+            None,
+            &PluginCatalog::builtin(),
+        )
+        .unwrap();
+        let level = |task, level| TaskLevel { task, level };
+        let change = GovernorEvent::LevelsChanged(LevelChange {
+            time_s: 60.0,
+            phase: 1,
+            reason: ChangeReason::MoreEnergyAvailable,
+            trigger: ReplanTrigger::Periodic,
+            old_levels: vec![vec![level(0, 3), level(3, 1)]],
+            new_levels: vec![vec![level(0, 3), level(3, 3)]],
+            old_utility: 9.75,
+            new_utility: 10.0,
+            old_energy_wh: 42.7,
+            new_energy_wh: 42.98,
+            available_wh: 51.86,
+            margin_wh: 1.0,
+            reserve_wh: 18.0,
+            correction_ratio: 0.94,
+        });
+        let text = change.describe(&config.tasks);
+        assert!(text.starts_with("hazard 0.25 → 4 rate_fps: "), "{text}");
+        assert!(text.contains("9.75 → 10.00") && text.contains("of 51.86 Wh available"));
+        assert!(
+            !text.contains("detection"),
+            "an unchanged task is not listed: {text}"
+        );
+        let land = GovernorEvent::LandNow(LandNow {
+            time_s: 30.0,
+            phase: 1,
+            needed_wh: 40.0,
+            available_wh: 36.8,
+            shortfall_wh: 3.2,
+            tolerance_wh: 0.5,
+            reserve_wh: 18.0,
+            correction_ratio: 1.1,
+        });
+        assert!(land.describe(&config.tasks).contains("short by 3.20 Wh"));
+    }
 
     // ---- missions --------------------------------------------------------------------------
 

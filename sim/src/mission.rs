@@ -322,7 +322,7 @@ pub fn simulate(
                         }
                         qos_changes.push(QosChange {
                             time_s,
-                            description: describe(model, &event),
+                            description: event.describe(&model.config.tasks),
                         });
                     }
                     apply_levels(&mut scheduler, model, &governor, &fixed)?;
@@ -664,58 +664,6 @@ fn pad_pose(tractor: &Tractor) -> PadPose {
         east_m: pad.centre_ned_m.y,
         height_m: -pad.centre_ned_m.z,
         yaw_rad: pad.yaw_rad,
-    }
-}
-
-/// A governor event in one line: which task moved between which knob values, why, and the
-/// energy behind it.
-fn describe(model: &MissionModel, event: &GovernorEvent) -> String {
-    let tasks = &model.config.tasks;
-    match event {
-        GovernorEvent::LevelsChanged(change) => {
-            let (old, new) = (
-                change.old_levels.first().map(Vec::as_slice).unwrap_or(&[]),
-                change.new_levels.first().map(Vec::as_slice).unwrap_or(&[]),
-            );
-            let moves: Vec<String> = new
-                .iter()
-                .filter_map(|after| {
-                    let before = old.iter().find(|b| b.task == after.task)?;
-                    let task = tasks.get(after.task)?;
-                    (before.level != after.level).then(|| {
-                        format!(
-                            "{} {} → {} {}",
-                            task.name,
-                            task.levels[before.level],
-                            task.levels[after.level],
-                            task.knob
-                        )
-                    })
-                })
-                .collect();
-            let moves = if moves.is_empty() {
-                "later phases' levels".to_string()
-            } else {
-                moves.join(", ")
-            };
-            format!(
-                "{moves}: {} ({}); utility {:.2} → {:.2}, energy to go {:.2} → {:.2} Wh of {:.2} Wh available",
-                change.reason,
-                change.trigger,
-                change.old_utility,
-                change.new_utility,
-                change.old_energy_wh,
-                change.new_energy_wh,
-                change.available_wh
-            )
-        }
-        GovernorEvent::LandNow(land) => format!(
-            "land now: the cheapest levels need {:.2} Wh, {:.2} Wh available (short by {:.2} Wh)",
-            land.needed_wh, land.available_wh, land.shortfall_wh
-        ),
-        GovernorEvent::ReplanFailed { time_s, message } => {
-            format!("re-plan failed at {time_s:.1} s: {message}")
-        }
     }
 }
 
