@@ -29,46 +29,7 @@ struct Cli {
 enum Command {
     /// Fly the whole mission in the built-in simulator: vehicle, tractor, wind, camera, battery
     /// and a MAVLink autopilot over UDP, with the real runtime and tasks, in virtual time.
-    Sim {
-        /// The mission config.
-        #[arg(default_value = "qos.toml")]
-        file: PathBuf,
-        /// The tractor's path: straight, s-shape, rectangle, circle, figure8, turn90, turn180.
-        #[arg(long, default_value = "straight")]
-        path: ::sim::tractor::PathKind,
-        /// Mean wind speed (the seed's gust model).
-        #[arg(long = "wind-mps", default_value_t = 0.0, value_name = "M_S")]
-        wind_m_s: f64,
-        /// Dryden turbulence around the mean wind instead of the seed's gusts.
-        #[arg(long)]
-        dryden: bool,
-        /// The tractor's speed.
-        #[arg(long = "platform-speed-mps", default_value_t = 1.5, value_name = "M_S")]
-        platform_speed_m_s: f64,
-        /// Random seed (wind, camera noise, hazards); the same seed flies the same mission.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Fly this many seeds (seed, seed + 1, ...) and print a summary.
-        #[arg(long, default_value_t = 1)]
-        runs: usize,
-        /// Override the tracking phase's duration (s), e.g. to evaluate landings.
-        #[arg(long, value_name = "S")]
-        tracking_s: Option<f64>,
-        /// Hold a task at one of its levels, by knob value: --fix detection=10 (repeatable).
-        #[arg(long = "fix", value_name = "TASK=VALUE", value_parser = parse_fixed_level)]
-        fixed_levels: Vec<(String, f64)>,
-        /// Print the outcome as JSON.
-        #[arg(long)]
-        json: bool,
-        /// Draw the vehicle's and the tractor's tracks and the battery over time as SVG.
-        #[arg(long, value_name = "PATH")]
-        svg: Option<PathBuf>,
-        /// Evaluate landings: every landing-marker rate × wind {0, 8, 12} m/s × path {straight,
-        /// figure8, turn180}, --runs seeds per cell (tracking shortened to 15 s unless
-        /// --tracking-s says otherwise), as a table.
-        #[arg(long)]
-        evaluate: bool,
-    },
+    Sim(sim::SimArgs),
     /// Validate a mission's QoS config and print a summary of it.
     Check {
         /// The mission config.
@@ -151,33 +112,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Check { file, json } => check::run(&file, json),
-        Command::Sim {
-            file,
-            path,
-            wind_m_s,
-            dryden,
-            platform_speed_m_s,
-            seed,
-            runs,
-            tracking_s,
-            fixed_levels,
-            json,
-            svg,
-            evaluate,
-        } => sim::run(&sim::SimArgs {
-            file,
-            path,
-            wind_m_s,
-            dryden,
-            platform_speed_m_s,
-            seed,
-            runs,
-            tracking_s,
-            fixed_levels,
-            json,
-            svg,
-            evaluate,
-        }),
+        Command::Sim(args) => sim::run(&args),
         Command::Detect {
             images,
             layout,
@@ -224,19 +159,4 @@ fn main() -> ExitCode {
             svg,
         }),
     }
-}
-
-/// `TASK=VALUE` for `--fix`.
-fn parse_fixed_level(text: &str) -> Result<(String, f64), String> {
-    let (task, value) = text
-        .split_once('=')
-        .ok_or_else(|| format!("expected TASK=VALUE (e.g. detection=10), found `{text}`"))?;
-    let value: f64 = value
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{value}` is not a number; expected TASK=VALUE"))?;
-    if task.trim().is_empty() {
-        return Err(format!("no task name in `{text}`; expected TASK=VALUE"));
-    }
-    Ok((task.trim().to_string(), value))
 }

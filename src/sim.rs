@@ -13,20 +13,69 @@ use sim::tractor::PathKind;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+/// `qosrt sim`'s arguments.
+#[derive(clap::Args)]
 pub struct SimArgs {
+    /// The mission config.
+    #[arg(default_value = "qos.toml")]
     pub file: PathBuf,
+    /// The tractor's path: straight, s-shape, rectangle, circle, figure8, turn90, turn180.
+    #[arg(long, default_value = "straight")]
     pub path: PathKind,
+    /// Mean wind speed (the seed's gust model).
+    #[arg(long = "wind-mps", default_value_t = 0.0, value_name = "M_S")]
     pub wind_m_s: f64,
+    /// Dryden turbulence around the mean wind instead of the seed's gusts.
+    #[arg(long)]
     pub dryden: bool,
+    /// The tractor's speed.
+    #[arg(long = "platform-speed-mps", default_value_t = 1.5, value_name = "M_S")]
     pub platform_speed_m_s: f64,
+    /// Random seed (wind, camera noise, hazards); the same seed flies the same mission.
+    #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Fly this many seeds (seed, seed + 1, ...) and print a summary.
+    #[arg(long, default_value_t = 1)]
     pub runs: usize,
+    /// Override the tracking phase's duration (s), e.g. to evaluate landings.
+    #[arg(long, value_name = "S")]
     pub tracking_s: Option<f64>,
+    /// Hold a task at one of its levels, by knob value: --fix detection=10 (repeatable).
+    #[arg(long = "fix", value_name = "TASK=VALUE", value_parser = parse_fixed_level)]
     pub fixed_levels: Vec<(String, f64)>,
+    /// Print the outcome as JSON.
+    #[arg(long)]
     pub json: bool,
+    /// Draw the vehicle's and the tractor's tracks and the battery over time as SVG.
+    #[arg(long, value_name = "PATH")]
     pub svg: Option<PathBuf>,
-    /// Run the evaluation grid instead of one mission.
+    /// Evaluate landings: every landing-marker rate × wind {0, 8, 12} m/s × path {straight,
+    /// figure8, turn180}, --runs seeds per cell (tracking shortened to 15 s unless
+    /// --tracking-s says otherwise), as a table.
+    #[arg(long)]
     pub evaluate: bool,
+}
+
+impl SimArgs {
+    /// One mission as the arguments describe it, flown with `seed`.
+    fn options(&self, seed: u64) -> SimOptions {
+        SimOptions {
+            path: self.path,
+            wind_speed_m_s: self.wind_m_s,
+            wind_kind: if self.dryden {
+                WindKind::Dryden
+            } else {
+                WindKind::Gusts
+            },
+            platform_speed_m_s: self.platform_speed_m_s,
+            seed,
+            tracking_s: self.tracking_s,
+            fixed_levels: self.fixed_levels.clone(),
+            faults: Faults::default(),
+            record_track: self.svg.is_some(),
+            ..SimOptions::default()
+        }
+    }
 }
 
 /// Exit status when the mission did not land on the pad (or no run of many did).
@@ -57,22 +106,7 @@ pub fn run(args: &SimArgs) -> ExitCode {
     if args.evaluate {
         return evaluate(&model, &registry, args);
     }
-    let options = |seed: u64| SimOptions {
-        path: args.path,
-        wind_speed_m_s: args.wind_m_s,
-        wind_kind: if args.dryden {
-            WindKind::Dryden
-        } else {
-            WindKind::Gusts
-        },
-        platform_speed_m_s: args.platform_speed_m_s,
-        seed,
-        tracking_s: args.tracking_s,
-        fixed_levels: args.fixed_levels.clone(),
-        faults: Faults::default(),
-        record_track: args.svg.is_some(),
-        ..SimOptions::default()
-    };
+    let options = |seed: u64| args.options(seed);
     if args.runs == 1 {
         let outcome = match simulate(&model, &registry, &options(args.seed)) {
             Ok(outcome) => outcome,
@@ -296,16 +330,10 @@ fn evaluate(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> 
                 let options = SimOptions {
                     path,
                     wind_speed_m_s: wind_m_s,
-                    wind_kind: if args.dryden {
-                        WindKind::Dryden
-                    } else {
-                        WindKind::Gusts
-                    },
-                    platform_speed_m_s: args.platform_speed_m_s,
-                    seed,
                     tracking_s: Some(args.tracking_s.unwrap_or(EVALUATION_TRACKING_S)),
                     fixed_levels: vec![(detection.name.clone(), rate)],
-                    ..SimOptions::default()
+                    record_track: false,
+                    ..args.options(seed)
                 };
                 match simulate(model, registry, &options) {
                     Ok(outcome) => results.lock().expect("no worker panics")[cell].push(outcome),
@@ -381,4 +409,19 @@ fn evaluation_table(rows: &[(f64, f64, PathKind, SimSummary)], args: &SimArgs) -
         );
     }
     out
+}
+
+/// `TASK=VALUE` for `--fix`.
+fn parse_fixed_level(text: &str) -> Result<(String, f64), String> {
+    let (task, value) = text
+        .split_once('=')
+        .ok_or_else(|| format!("expected TASK=VALUE (e.g. detection=10), found `{text}`"))?;
+    let value: f64 = value
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{value}` is not a number; expected TASK=VALUE"))?;
+    if task.trim().is_empty() {
+        return Err(format!("no task name in `{text}`; expected TASK=VALUE"));
+    }
+    Ok((task.trim().to_string(), value))
 }
