@@ -392,8 +392,9 @@ pub fn simulate(
             land_now,
         });
         for event in mission_events {
-            if let MissionEvent::PhaseStarted { phase, name } = &event {
-                if name == "landing" || *phase + 1 == config.mission.phases.len() {
+            if let MissionEvent::PhaseStarted { phase, .. } = &event {
+                // The sequencer's last phase is the landing.
+                if *phase + 1 == config.mission.phases.len() {
                     landing_started_s = Some(time_s);
                 }
                 if *phase == 1 {
@@ -599,28 +600,24 @@ fn apply_levels(
 /// the seed's.
 fn camera_config(model: &MissionModel) -> SimCameraConfig {
     let mut config = SimCameraConfig::default();
-    let tracker = model
-        .config
-        .tasks
-        .iter()
-        .find(|t| t.plugin == "kalman_tracker");
-    if let Some(params) = tracker.map(|t| &t.params) {
-        let number = |key: &str| {
-            params
-                .get(key)
-                .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
-        };
-        if let Some(fov) = number("camera_horizontal_fov_deg") {
-            config.horizontal_fov_deg = fov;
-        }
-        if let Some(width) = number("image_width_px") {
-            config.width_px = width as usize;
-        }
-        if let Some(height) = number("image_height_px") {
-            config.height_px = height as usize;
-        }
+    if let Some(fov) = plugin_number(model, "kalman_tracker", "camera_horizontal_fov_deg") {
+        config.horizontal_fov_deg = fov;
+    }
+    if let Some(width) = plugin_number(model, "kalman_tracker", "image_width_px") {
+        config.width_px = width as usize;
+    }
+    if let Some(height) = plugin_number(model, "kalman_tracker", "image_height_px") {
+        config.height_px = height as usize;
     }
     config
+}
+
+/// A number from the `[task.params]` of the first task running `plugin`; TOML integers count,
+/// as they do for the plugins' own parsing.
+fn plugin_number(model: &MissionModel, plugin: &str, key: &str) -> Option<f64> {
+    let task = model.config.tasks.iter().find(|t| t.plugin == plugin)?;
+    let value = task.params.get(key)?;
+    value.as_float().or(value.as_integer().map(|i| i as f64))
 }
 
 /// The sequencer's plan from the config: phases, the follow height (the landing task's IH
@@ -643,14 +640,8 @@ fn mission_plan(
             }
         })
         .collect();
-    let initial_altitude_m = model
-        .config
-        .tasks
-        .iter()
-        .find(|t| t.plugin == "landing_guidance")
-        .and_then(|t| t.params.get("initial_altitude_m"))
-        .and_then(|v| v.as_float())
-        .unwrap_or(7.5);
+    let initial_altitude_m = plugin_number(model, "landing_guidance", "initial_altitude_m")
+        .unwrap_or(algorithms::control::landing::LandingConfig::default().initial_height_m);
     let mut plan = MissionPlan::new(phases.iter().map(|p| p.name.clone()).collect(), durations);
     plan.cruise_altitude_m = initial_altitude_m + pad_height_m;
     plan.meeting_point_ne_m = meeting;

@@ -181,8 +181,8 @@ impl Task for GuidanceTask {
         };
         let now_s = ctx.now().as_secs_f64();
         let latest = relative.latest().map(|m| m.value);
-        let fix = latest
-            .filter(|r| now_s - r.estimate.time_s <= self.max_fix_age_s)
+        let fresh = latest.filter(|r| now_s - r.estimate.time_s <= self.max_fix_age_s);
+        let fix = fresh
             .filter(|r| {
                 r.last_fix_time_s
                     .is_some_and(|fix_s| now_s - fix_s <= self.max_vision_gap_s)
@@ -208,9 +208,7 @@ impl Task for GuidanceTask {
             touchdown_detected: state.landed,
             uav_velocity_ne_m_s: state.velocity_ned_m_s.xy(),
             descent_allowed,
-            predicted_uav_minus_pad_ne_m: latest
-                .filter(|r| now_s - r.estimate.time_s <= self.max_fix_age_s)
-                .map(|r| r.estimate.uav_relative_ned_m.xy()),
+            predicted_uav_minus_pad_ne_m: fresh.map(|r| r.estimate.uav_relative_ned_m.xy()),
         });
         match step {
             Ok(out) => {
