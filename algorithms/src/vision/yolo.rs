@@ -13,6 +13,7 @@
 //! YOLOv8's default); the shape says which. Boxes are mapped back from the letterboxed network
 //! input to the original image.
 
+use super::image::ImageView;
 use thiserror::Error;
 
 /// How the network lays out one candidate.
@@ -83,8 +84,9 @@ pub struct Detection {
     pub bbox: PixelBox,
 }
 
-/// How the original image was fitted into the network's square input: scaled by `scale`, then
-/// padded by `pad_x_px`, `pad_y_px` on the left and top.
+/// How the original image was fitted into the network's input: scaled by `scale` (the same on
+/// both axes, so shapes keep their aspect), then padded by `pad_x_px`, `pad_y_px` on the left and
+/// top.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Letterbox {
     pub scale: f64,
@@ -95,11 +97,22 @@ pub struct Letterbox {
 impl Letterbox {
     /// The letterbox that fits `width × height` into `input_size × input_size`, centred.
     pub fn fit(width_px: usize, height_px: usize, input_size_px: usize) -> Self {
-        let scale = input_size_px as f64 / width_px.max(height_px).max(1) as f64;
+        Self::fit_into(width_px, height_px, input_size_px, input_size_px)
+    }
+
+    /// The letterbox that fits `width × height` into `input_width × input_height`, centred.
+    pub fn fit_into(
+        width_px: usize,
+        height_px: usize,
+        input_width_px: usize,
+        input_height_px: usize,
+    ) -> Self {
+        let scale = (input_width_px as f64 / width_px.max(1) as f64)
+            .min(input_height_px as f64 / height_px.max(1) as f64);
         Self {
             scale,
-            pad_x_px: (input_size_px as f64 - width_px as f64 * scale) / 2.0,
-            pad_y_px: (input_size_px as f64 - height_px as f64 * scale) / 2.0,
+            pad_x_px: (input_width_px as f64 - width_px as f64 * scale) / 2.0,
+            pad_y_px: (input_height_px as f64 - height_px as f64 * scale) / 2.0,
         }
     }
 
@@ -112,6 +125,76 @@ impl Letterbox {
             y_max: (b.y_max - self.pad_y_px) / self.scale,
         }
     }
+}
+
+/// Grey level of the letterbox's padding, as YOLO exports use (114 of 255).
+pub const LETTERBOX_PAD_VALUE: f32 = 114.0 / 255.0;
+
+/// The network input for a grayscale image: letterboxed into `input_width × input_height`, each
+/// input pixel the area-weighted mean of the image pixels it covers (an exact 2×2 mean at half
+/// scale, so small objects keep their contrast), scaled to [0, 1], padding at
+/// [`LETTERBOX_PAD_VALUE`]. Row-major, one channel; the training tool and the hazard task both
+/// use this, so a model sees in flight what it was trained on.
+pub fn letterbox_gray(
+    image: &ImageView<'_>,
+    input_width_px: usize,
+    input_height_px: usize,
+) -> (Vec<f32>, Letterbox) {
+    let letterbox = Letterbox::fit_into(
+        image.width(),
+        image.height(),
+        input_width_px,
+        input_height_px,
+    );
+    let mut input = vec![LETTERBOX_PAD_VALUE; input_width_px * input_height_px];
+    let (width, height) = (image.width(), image.height());
+    if width == 0 || height == 0 {
+        return (input, letterbox);
+    }
+    // Per input column (row), the image columns (rows) it covers with their weights.
+    let spans = |count_in: usize, pad: f64, count_image: usize| -> Vec<Vec<(usize, f32)>> {
+        (0..count_in)
+            .map(|i| {
+                let from = (i as f64 - pad) / letterbox.scale;
+                let to = (i as f64 + 1.0 - pad) / letterbox.scale;
+                let (from, to) = (from.max(0.0), to.min(count_image as f64));
+                if to <= from {
+                    return Vec::new();
+                }
+                let mut weights = Vec::new();
+                let mut k = from.floor() as usize;
+                while (k as f64) < to && k < count_image {
+                    let overlap = (to.min(k as f64 + 1.0) - from.max(k as f64)).max(0.0);
+                    if overlap > 0.0 {
+                        weights.push((k, (overlap / (to - from)) as f32));
+                    }
+                    k += 1;
+                }
+                weights
+            })
+            .collect()
+    };
+    let columns = spans(input_width_px, letterbox.pad_x_px, width);
+    let rows = spans(input_height_px, letterbox.pad_y_px, height);
+    for (y, row_weights) in rows.iter().enumerate() {
+        if row_weights.is_empty() {
+            continue;
+        }
+        for (x, column_weights) in columns.iter().enumerate() {
+            if column_weights.is_empty() {
+                continue;
+            }
+            let mut sum = 0.0f32;
+            for &(image_y, wy) in row_weights {
+                let row = image.row(image_y);
+                for &(image_x, wx) in column_weights {
+                    sum += wy * wx * f32::from(row[image_x]);
+                }
+            }
+            input[y * input_width_px + x] = sum / 255.0;
+        }
+    }
+    (input, letterbox)
 }
 
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -261,6 +344,54 @@ mod tests {
         pad_x_px: 0.0,
         pad_y_px: 0.0,
     };
+
+    #[test]
+    fn letterbox_input_is_the_area_mean_of_the_image() {
+        use crate::vision::image::GrayImage;
+        // A pseudo-random 640×480 image.
+        let mut state = 12345u32;
+        let data: Vec<u8> = (0..640 * 480)
+            .map(|_| {
+                state = state.wrapping_mul(1_103_515_245).wrapping_add(12_345);
+                (state >> 16) as u8
+            })
+            .collect();
+        let image = GrayImage::from_vec(640, 480, data).unwrap();
+        // Half scale: every input pixel is the plain mean of a 2×2 block.
+        let (input, letterbox) = letterbox_gray(&image.view(), 320, 240);
+        assert_eq!(
+            (letterbox.scale, letterbox.pad_x_px, letterbox.pad_y_px),
+            (0.5, 0.0, 0.0)
+        );
+        for (x, y) in [(0, 0), (17, 93), (319, 239), (200, 5)] {
+            let block: u32 = [(0, 0), (1, 0), (0, 1), (1, 1)]
+                .iter()
+                .map(|(dx, dy)| u32::from(image.get(2 * x + dx, 2 * y + dy)))
+                .sum();
+            let expected = block as f32 / 4.0 / 255.0;
+            assert!((input[y * 320 + x] - expected).abs() < 1e-5, "({x}, {y})");
+        }
+        // Into a square: 40 rows of padding above and below, the image between.
+        let (input, letterbox) = letterbox_gray(&image.view(), 320, 320);
+        assert_eq!((letterbox.pad_x_px, letterbox.pad_y_px), (0.0, 40.0));
+        assert!(input[..320 * 40].iter().all(|&v| v == LETTERBOX_PAD_VALUE));
+        assert!(input[320 * 280..].iter().all(|&v| v == LETTERBOX_PAD_VALUE));
+        let first = [(0, 0), (1, 0), (0, 1), (1, 1)]
+            .iter()
+            .map(|&(x, y)| f32::from(image.get(x, y)))
+            .sum::<f32>()
+            / 4.0
+            / 255.0;
+        assert!((input[320 * 40] - first).abs() < 1e-5);
+        // A non-integer scale keeps a uniform image uniform and a box maps back to its place.
+        let grey = GrayImage::filled(640, 480, 200).unwrap();
+        let (input, letterbox) = letterbox_gray(&grey.view(), 416, 416);
+        let inside = &input[416 * 80..416 * 320];
+        assert!(inside.iter().all(|&v| (v - 200.0 / 255.0).abs() < 1e-4));
+        let b = letterbox.to_image(&PixelBox::from_centre(208.0, 208.0, 41.6, 41.6));
+        assert!((b.centre().0 - 320.0).abs() < 1e-9 && (b.centre().1 - 240.0).abs() < 1e-9);
+        assert!((b.x_max - b.x_min - 64.0).abs() < 1e-9);
+    }
 
     #[test]
     fn iou_of_hand_computed_boxes() {
