@@ -54,6 +54,12 @@ pub struct SimArgs {
     /// --tracking-s says otherwise), as a table.
     #[arg(long)]
     pub evaluate: bool,
+    /// Evaluate hazard detection as the seed scored it (a hazard seen = a detection of its class
+    /// within 2 m): every hazard-CNN rate × wind {0, 8, 12} m/s on the straight path, --runs
+    /// seeds per cell (tracking 200 s, 32 hazards beside the track, unless --tracking-s says
+    /// otherwise), as a table.
+    #[arg(long, conflicts_with = "evaluate")]
+    pub evaluate_hazards: bool,
 }
 
 impl SimArgs {
@@ -105,6 +111,9 @@ pub fn run(args: &SimArgs) -> ExitCode {
     };
     if args.evaluate {
         return evaluate(&model, &registry, args);
+    }
+    if args.evaluate_hazards {
+        return evaluate_hazards(&model, &registry, args);
     }
     let options = |seed: u64| args.options(seed);
     if args.runs == 1 {
@@ -237,7 +246,13 @@ pub fn report(outcome: &SimOutcome) -> String {
     );
     out += &format!("  landing aborts       {}\n", outcome.landing_aborts);
     out += &match outcome.hazards_seen {
-        Some(seen) => format!("  hazards seen         {seen}/{}\n", outcome.hazards_total),
+        Some(seen) => format!(
+            "  hazards seen         {seen}/{} within 2 m and rightly classified ({} frames on {}, {} false detections)\n",
+            outcome.hazards_total,
+            outcome.hazard_frames,
+            outcome.hazard_backend.as_deref().unwrap_or("?"),
+            outcome.hazard_false_detections
+        ),
         None => format!(
             "  hazards seen         —/{} (no hazard detector ran)\n",
             outcome.hazards_total
@@ -246,6 +261,9 @@ pub fn report(outcome: &SimOutcome) -> String {
     out += &format!("  simulated            {:.1}× real time\n", outcome.speedup);
     for skipped in &outcome.skipped_tasks {
         out += &format!("  not flown            task {skipped}\n");
+    }
+    for failed in &outcome.failed_tasks {
+        out += &format!("  failed, flew on without it: task {failed}\n");
     }
     out += &format!("QoS changes ({}):\n", outcome.qos_changes.len());
     for change in &outcome.qos_changes {
@@ -307,52 +325,30 @@ fn evaluate(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> 
             }
         }
     }
-    let jobs: Vec<(usize, u64)> = (0..cells.len())
-        .flat_map(|cell| (0..args.runs as u64).map(move |run| (cell, args.seed + run)))
-        .collect();
-    let bar = ProgressBar::new(jobs.len() as u64);
-    bar.set_style(
-        ProgressStyle::with_template("{bar:40} {pos}/{len} missions, {elapsed} elapsed, ETA {eta}")
-            .expect("a valid template"),
-    );
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let results = std::sync::Mutex::new(vec![Vec::new(); cells.len()]);
-    let failure = std::sync::Mutex::new(None);
-    std::thread::scope(|scope| {
-        for _ in 0..workers {
-            scope.spawn(|| loop {
-                let index = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(&(cell, seed)) = jobs.get(index) else {
-                    break;
-                };
-                let (rate, wind_m_s, path) = cells[cell];
+    let jobs: Vec<(usize, SimOptions)> = cells
+        .iter()
+        .enumerate()
+        .flat_map(|(cell, &(rate, wind_m_s, path))| {
+            (0..args.runs as u64).map(move |run| {
                 let options = SimOptions {
                     path,
                     wind_speed_m_s: wind_m_s,
                     tracking_s: Some(args.tracking_s.unwrap_or(EVALUATION_TRACKING_S)),
                     fixed_levels: vec![(detection.name.clone(), rate)],
                     record_track: false,
-                    ..args.options(seed)
+                    ..args.options(args.seed + run)
                 };
-                match simulate(model, registry, &options) {
-                    Ok(outcome) => results.lock().expect("no worker panics")[cell].push(outcome),
-                    Err(error) => {
-                        *failure.lock().expect("no worker panics") =
-                            Some(format!("seed {seed}: {error}"));
-                        break;
-                    }
-                }
-                bar.inc(1);
-            });
+                (cell, options)
+            })
+        })
+        .collect();
+    let results = match fly_all(model, registry, jobs, cells.len()) {
+        Ok(results) => results,
+        Err(error) => {
+            eprintln!("error: {error}");
+            return ExitCode::FAILURE;
         }
-    });
-    bar.finish_and_clear();
-    if let Some(error) = failure.into_inner().expect("no worker panics") {
-        eprintln!("error: {error}");
-        return ExitCode::FAILURE;
-    }
-    let results = results.into_inner().expect("no worker panics");
+    };
     let rows: Vec<(f64, f64, PathKind, SimSummary)> = cells
         .iter()
         .zip(&results)
@@ -378,6 +374,181 @@ fn evaluate(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> 
         print!("{}", evaluation_table(&rows, args));
     }
     ExitCode::SUCCESS
+}
+
+/// Flies every job on all cores with a progress bar; the outcomes grouped by the job's cell.
+fn fly_all(
+    model: &MissionModel,
+    registry: &PluginRegistry,
+    jobs: Vec<(usize, SimOptions)>,
+    cells: usize,
+) -> Result<Vec<Vec<SimOutcome>>, String> {
+    let bar = ProgressBar::new(jobs.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} missions, {elapsed} elapsed, ETA {eta}")
+            .expect("a valid template"),
+    );
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results = std::sync::Mutex::new(vec![Vec::new(); cells]);
+    let failure = std::sync::Mutex::new(None);
+    std::thread::scope(|scope| {
+        for _ in 0..workers {
+            scope.spawn(|| loop {
+                let index = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some((cell, options)) = jobs.get(index) else {
+                    break;
+                };
+                match simulate(model, registry, options) {
+                    Ok(outcome) => results.lock().expect("no worker panics")[*cell].push(outcome),
+                    Err(error) => {
+                        *failure.lock().expect("no worker panics") =
+                            Some(format!("seed {}: {error}", options.seed));
+                        break;
+                    }
+                }
+                bar.inc(1);
+            });
+        }
+    });
+    bar.finish_and_clear();
+    if let Some(error) = failure.into_inner().expect("no worker panics") {
+        return Err(error);
+    }
+    Ok(results.into_inner().expect("no worker panics"))
+}
+
+/// The tracking phase of a hazard evaluation: 300 m of track at 1.5 m/s, room for the seed's 32
+/// hazards.
+const HAZARD_EVALUATION_TRACKING_S: f64 = 200.0;
+
+/// The seed's hazard experiment: every hazard-CNN rate × wind, `args.runs` seeds per cell.
+fn evaluate_hazards(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> ExitCode {
+    let Some(hazard) = model.config.tasks.iter().find(|t| t.plugin == "hazard_cnn") else {
+        eprintln!("error: --evaluate-hazards needs a hazard_cnn task in the config");
+        return ExitCode::from(EXIT_INVALID_CONFIG);
+    };
+    let mut cells = Vec::new();
+    for &rate in &hazard.levels {
+        for wind_m_s in [0.0, 8.0, 12.0] {
+            cells.push((rate, wind_m_s));
+        }
+    }
+    let jobs: Vec<(usize, SimOptions)> = cells
+        .iter()
+        .enumerate()
+        .flat_map(|(cell, &(rate, wind_m_s))| {
+            (0..args.runs as u64).map(move |run| {
+                let mut fixed_levels = args.fixed_levels.clone();
+                fixed_levels.push((hazard.name.clone(), rate));
+                let options = SimOptions {
+                    wind_speed_m_s: wind_m_s,
+                    tracking_s: Some(args.tracking_s.unwrap_or(HAZARD_EVALUATION_TRACKING_S)),
+                    fixed_levels,
+                    record_track: false,
+                    ..args.options(args.seed + run)
+                };
+                (cell, options)
+            })
+        })
+        .collect();
+    let results = match fly_all(model, registry, jobs, cells.len()) {
+        Ok(results) => results,
+        Err(error) => {
+            eprintln!("error: {error}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let rows: Vec<HazardRow> = cells
+        .iter()
+        .zip(&results)
+        .map(|(&(rate_fps, wind_m_s), outcomes)| HazardRow::of(rate_fps, wind_m_s, outcomes))
+        .collect();
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&rows).expect("rows serialise")
+        );
+    } else {
+        print!("{}", hazard_table(&rows, args));
+    }
+    ExitCode::SUCCESS
+}
+
+/// One cell of the hazard evaluation, over its seeds.
+#[derive(serde::Serialize)]
+struct HazardRow {
+    rate_fps: f64,
+    wind_m_s: f64,
+    runs: usize,
+    seen: usize,
+    total: usize,
+    false_detections_per_run: f64,
+    frames_per_run: f64,
+    companion_energy_mean_wh: f64,
+    landed_fraction: f64,
+    backend: String,
+}
+
+impl HazardRow {
+    fn of(rate_fps: f64, wind_m_s: f64, outcomes: &[SimOutcome]) -> Self {
+        let runs = outcomes.len();
+        let per_run = |f: &dyn Fn(&SimOutcome) -> f64| {
+            outcomes.iter().map(f).sum::<f64>() / runs.max(1) as f64
+        };
+        Self {
+            rate_fps,
+            wind_m_s,
+            runs,
+            seen: outcomes.iter().filter_map(|o| o.hazards_seen).sum(),
+            total: outcomes.iter().map(|o| o.hazards_total).sum(),
+            false_detections_per_run: per_run(&|o| o.hazard_false_detections as f64),
+            frames_per_run: per_run(&|o| o.hazard_frames as f64),
+            companion_energy_mean_wh: per_run(&|o| o.companion_energy_wh),
+            landed_fraction: per_run(&|o| f64::from(u8::from(o.landed_on_pad))),
+            backend: outcomes
+                .iter()
+                .find_map(|o| o.hazard_backend.clone())
+                .unwrap_or_else(|| "none".into()),
+        }
+    }
+}
+
+fn hazard_table(rows: &[HazardRow], args: &SimArgs) -> String {
+    let mut out = format!(
+        "{} seeds per cell from seed {}, straight path, tractor at {} m/s, {} wind\n\n",
+        args.runs,
+        args.seed,
+        args.platform_speed_m_s,
+        if args.dryden { "Dryden" } else { "gust" }
+    );
+    out += "| hazard CNN rate (fps) | wind (m/s) | hazards seen | seen per run | false detections per run | frames per run | companion energy (Wh) | landed |\n";
+    out += "| --- | --- | --- | --- | --- | --- | --- | --- |\n";
+    for r in rows {
+        let share = if r.total == 0 {
+            0.0
+        } else {
+            r.seen as f64 / r.total as f64
+        };
+        out += &format!(
+            "| {} | {} | {}/{} ({:.0} %) | {:.1} of {:.0} | {:.1} | {:.0} | {:.3} | {:.0} % |\n",
+            r.rate_fps,
+            r.wind_m_s,
+            r.seen,
+            r.total,
+            100.0 * share,
+            r.seen as f64 / r.runs.max(1) as f64,
+            r.total as f64 / r.runs.max(1) as f64,
+            r.false_detections_per_run,
+            r.frames_per_run,
+            r.companion_energy_mean_wh,
+            100.0 * r.landed_fraction
+        );
+    }
+    if let Some(backend) = rows.first().map(|r| &r.backend) {
+        out += &format!("\nhazard CNN backend: {backend}\n");
+    }
+    out
 }
 
 /// The tracking phase of an evaluation mission. The tractor pulls away when tracking begins and

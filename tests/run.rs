@@ -88,6 +88,28 @@ fn a_dry_run_steps_the_detector_at_its_planned_rate_and_prints_its_statistics() 
 }
 
 #[test]
+fn the_reference_mission_dry_runs_all_four_tasks() {
+    let output = qosrt(&["run", "qos.toml", "--dry-run", "--duration-s", "3"]);
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert_eq!(
+        output.status.code(),
+        Some(0),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    for task in ["detection", "tracking", "landing", "hazard"] {
+        let row = stdout
+            .lines()
+            .find(|l| l.starts_with(task))
+            .unwrap_or_else(|| panic!("no {task} row:\n{stdout}"));
+        let fields: Vec<&str> = row.split_whitespace().collect();
+        let activations: u64 = fields[4].parse().unwrap();
+        assert!(activations >= 1, "{row}");
+        assert_eq!(fields[7], "0", "failures: {row}");
+    }
+}
+
+#[test]
 fn a_plugin_this_binary_lacks_is_a_located_error() {
     let dir = tempfile::tempdir().unwrap();
     let mission = detection_mission(&dir);

@@ -62,6 +62,7 @@ fn khz_task(index: usize) -> TaskConfig {
         utility: vec![1.0],
         restart: None,
         params: toml::Table::new(),
+        config_dir: None,
     }
 }
 

@@ -49,7 +49,7 @@ pub struct DryRunReport {
     pub wall_s: f64,
 }
 
-const FRAME_PERIOD: Duration = Duration::from_millis(100);
+pub(crate) const FRAME_PERIOD: Duration = Duration::from_millis(100);
 const TELEMETRY_PERIOD: Duration = Duration::from_millis(200);
 
 pub fn dry_run(
@@ -92,14 +92,7 @@ pub fn dry_run(
         .bus()
         .publisher::<VehicleState>(VEHICLE_STATE)
         .map_err(|e| DryRunError::Camera(e.to_string()))?;
-    let [roll, pitch, yaw] = HOVER_ATTITUDE_RAD;
-    let hovering = VehicleState {
-        attitude: Attitude::new(roll, pitch, yaw),
-        velocity_ned_m_s: Vector3::zeros(),
-        acceleration_ned_m_s2: Vector3::zeros(),
-        height_above_pad_m: HOVER_HEIGHT_M,
-        landed: false,
-    };
+    let hovering = hovering_vehicle();
     apply_levels(&scheduler, model, &governor)?;
     scheduler.start()?;
 
@@ -193,9 +186,23 @@ fn apply_levels(
 const HOVER_HEIGHT_M: f64 = 5.0;
 const HOVER_ATTITUDE_RAD: [f64; 3] = [0.04, -0.03, 0.2];
 
+/// The synthetic vehicle's state, as its autopilot would report it.
+pub(crate) fn hovering_vehicle() -> VehicleState {
+    let [roll, pitch, yaw] = HOVER_ATTITUDE_RAD;
+    VehicleState {
+        attitude: Attitude::new(roll, pitch, yaw),
+        velocity_ned_m_s: Vector3::zeros(),
+        acceleration_ned_m_s2: Vector3::zeros(),
+        height_above_pad_m: HOVER_HEIGHT_M,
+        // The pad lies on the ground in the synthetic frames.
+        position_ned_m: Some(Vector3::new(0.0, 0.0, -HOVER_HEIGHT_M)),
+        landed: false,
+    }
+}
+
 /// A few frames of the reference pad drifting under a camera at 5 m, rendered once up front so
 /// the run measures the tasks, not the renderer.
-fn synthetic_frames() -> Result<Vec<Arc<GrayImage>>, DryRunError> {
+pub(crate) fn synthetic_frames() -> Result<Vec<Arc<GrayImage>>, DryRunError> {
     let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians())
         .map_err(|e| DryRunError::Camera(e.to_string()))?;
     let [roll, pitch, yaw] = HOVER_ATTITUDE_RAD;

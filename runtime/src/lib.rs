@@ -10,6 +10,7 @@ pub mod diagnostic;
 pub mod dry_run;
 pub mod energy;
 pub mod governor;
+pub mod inference;
 pub mod link;
 pub mod mission;
 pub mod plugins;

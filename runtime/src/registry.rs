@@ -283,6 +283,7 @@ mod tests {
             utility: vec![1.0],
             restart: None,
             params: toml::from_str(params).unwrap(),
+            config_dir: None,
         }
     }
 

@@ -390,6 +390,7 @@ mod tests {
             levels,
             restart: None,
             params: toml::Table::new(),
+            config_dir: None,
         }
     }
 

@@ -46,6 +46,9 @@ pub struct VehicleState {
     pub acceleration_ned_m_s2: nalgebra::Vector3<f64>,
     /// Height of the camera above the landing pad's surface.
     pub height_above_pad_m: f64,
+    /// Local position (MAVLink LOCAL_POSITION_NED: from the home point, down positive), when the
+    /// autopilot reports one; the hazard task places what it sees on the ground with it.
+    pub position_ned_m: Option<nalgebra::Vector3<f64>>,
     /// The autopilot reports the vehicle on the ground.
     pub landed: bool,
 }
@@ -79,4 +82,34 @@ pub struct MissionPhase {
     /// Index into the config's `[[mission.phase]]`, in flight order.
     pub index: usize,
     pub name: Arc<str>,
+}
+
+/// Latest hazard report, one per frame the hazard CNN processed.
+pub const HAZARDS: &str = "vision/hazards";
+
+/// One hazard the CNN saw.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HazardDetection {
+    /// Index into the task's `classes`.
+    pub class_id: usize,
+    pub class_name: Arc<str>,
+    pub confidence: f64,
+    /// In the frame's pixels.
+    pub bbox: algorithms::vision::yolo::PixelBox,
+    /// Where the box's centre lies on the ground (local NED, down = 0 at the home point's level);
+    /// `None` without a vehicle position or when the pixel looks above the horizon.
+    pub position_ned_m: Option<nalgebra::Vector3<f64>>,
+}
+
+/// What the hazard CNN made of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HazardReport {
+    pub frame_index: u64,
+    /// When the frame was captured (the camera message's stamp), seconds on the task clock.
+    pub capture_time_s: f64,
+    pub detections: Vec<HazardDetection>,
+    /// The inference backend that ran ("tract-cpu", "onnxruntime-cuda", ...).
+    pub backend: &'static str,
+    /// Wall time of preprocessing, inference and decoding.
+    pub inference_ms: f64,
 }

@@ -4,6 +4,8 @@
 pub mod autopilot;
 pub mod camera;
 pub mod flight;
+pub mod hazard_dataset;
+pub mod hazard_score;
 pub mod mission;
 pub mod outcome;
 pub mod power;

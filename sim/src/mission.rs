@@ -12,9 +12,10 @@
 
 use crate::autopilot::MavlinkAutopilot;
 use crate::camera::{SimCamera, SimCameraConfig, VehiclePose};
+use crate::hazard_score::HazardScore;
 use crate::outcome::{QosChange, SimOutcome, TrackSample};
 use crate::power::{RotorPowerModel, SimBattery};
-use crate::scene::{HazardField, PadPose, ScatterConfig, SimScene, TractorBody};
+use crate::scene::{HazardField, PadPose, SimScene, TrackScatterConfig, TractorBody};
 use crate::tractor::{PathKind, Tractor, TractorParams};
 use crate::vehicle::{Multirotor, VehicleParams};
 use crate::wind::{Wind, WindConfig};
@@ -30,8 +31,8 @@ use runtime::registry::PluginRegistry;
 use runtime::scheduler::{SchedulerBuilder, VirtualScheduler};
 use runtime::telemetry::MissionProgress;
 use runtime::topics::{
-    CameraFrame, LandingSetpoint, MissionPhase, VehicleState, CAMERA_FRAME, LANDING_SETPOINT,
-    MISSION_PHASE, VEHICLE_STATE,
+    CameraFrame, HazardReport, LandingSetpoint, MissionPhase, VehicleState, CAMERA_FRAME, HAZARDS,
+    LANDING_SETPOINT, MISSION_PHASE, VEHICLE_STATE,
 };
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -191,14 +192,14 @@ pub fn simulate(
     let camera_config = camera_config(model);
     let camera_period_s = 1.0 / camera_config.rate_fps;
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
-    let hazards = HazardField::scatter(
-        options.seed,
-        &ScatterConfig {
-            keep_out_path_ne_m: vec![meeting],
-            ..ScatterConfig::default()
-        },
-    )
-    .map_err(|e| setup(&e))?;
+    // The hazards stand beside the track the tractor will drive while the CNN watches.
+    let watch_s: f64 = model.config.mission.phases[1..model.config.mission.phases.len() - 1]
+        .iter()
+        .map(|p| p.duration_s)
+        .sum();
+    let track = future_track_ne_m(&tractor, watch_s).map_err(|e| setup(&e))?;
+    let hazards = HazardField::along_track(options.seed, &track, &track_scatter(&track))
+        .map_err(|e| setup(&e))?;
     let hazards_total = hazards.hazards.len();
     let mut scene = SimScene::new(options.seed)
         .with_tractor_body(TractorBody::default())
@@ -259,11 +260,23 @@ pub fn simulate(
     let mut setpoints = bus
         .subscriber::<LandingSetpoint>(LANDING_SETPOINT)
         .map_err(|e| setup(&e))?;
-    let camera_consumer = config
+    // The tasks that look at camera frames: a frame is rendered only when one will.
+    let camera_consumers: Vec<String> = config
         .tasks
         .iter()
-        .find(|t| t.plugin == "landing_marker" && registry.contains(&t.plugin))
+        .filter(|t| CAMERA_PLUGINS.contains(&t.plugin.as_str()) && registry.contains(&t.plugin))
+        .map(|t| t.name.clone())
+        .collect();
+    let hazard_task = config
+        .tasks
+        .iter()
+        .find(|t| t.plugin == "hazard_cnn" && registry.contains(&t.plugin))
         .map(|t| t.name.clone());
+    let mut hazard_reports = bus
+        .subscriber::<HazardReport>(HAZARDS)
+        .map_err(|e| setup(&e))?;
+    let mut hazard_score = HazardScore::default();
+    let mut hazard_backend: Option<&'static str> = None;
 
     apply_levels(&mut scheduler, model, &governor, &fixed)?;
     scheduler.start()?;
@@ -333,11 +346,12 @@ pub fn simulate(
 
         // The camera renders only what the detector will look at before the next frame.
         if camera.is_due(time_s) {
-            let wanted = camera_consumer.as_deref().and_then(|name| {
-                let next = scheduler.next_activation(name)?.as_secs_f64();
-                (next < time_s + camera_period_s).then_some(())
+            let wanted = camera_consumers.iter().any(|name| {
+                scheduler
+                    .next_activation(name)
+                    .is_some_and(|next| next.as_secs_f64() < time_s + camera_period_s)
             });
-            if wanted.is_some() {
+            if wanted {
                 scene
                     .set_pad_pose(pad_pose(&tractor))
                     .map_err(|e| setup(&e))?;
@@ -358,6 +372,10 @@ pub fn simulate(
 
         // The runtime's tasks up to now.
         scheduler.run_until(now)?;
+        if let Some(report) = hazard_reports.take_new() {
+            hazard_score.add(scene.hazards(), &report.value);
+            hazard_backend = Some(report.value.backend);
+        }
         let landing = setpoints
             .latest()
             .filter(|m| time_s - m.stamp.as_secs_f64() <= 0.5)
@@ -494,6 +512,17 @@ pub fn simulate(
     }
     let end_s = tick as f64 * TICK_S;
     scheduler.stop();
+    let failed_tasks = scheduler
+        .failed_tasks()
+        .into_iter()
+        .map(|name| {
+            let error = scheduler
+                .task_stats(&name)
+                .and_then(|stats| stats.last_error)
+                .unwrap_or_default();
+            format!("{name}: {error}")
+        })
+        .collect();
     let touchdown = vehicle.touchdown();
     let (flight_energy_wh, companion_energy_wh) = battery.energy_wh();
     let wall_s = wall_start.elapsed().as_secs_f64();
@@ -513,8 +542,15 @@ pub fn simulate(
         landing_aborts,
         qos_changes,
         events,
-        hazards_seen: None,
+        hazards_seen: hazard_task
+            .as_ref()
+            .filter(|_| hazard_backend.is_some())
+            .map(|_| hazard_score.seen()),
         hazards_total,
+        hazard_frames: hazard_score.frames,
+        hazard_false_detections: hazard_score.false_detections,
+        hazard_backend: hazard_backend.map(str::to_string),
+        failed_tasks,
         skipped_tasks,
         speedup: end_s / wall_s.max(1e-9),
         track,
@@ -647,6 +683,49 @@ fn mission_plan(
     plan.meeting_point_ne_m = meeting;
     plan
 }
+
+/// Plugins that read the camera topic.
+const CAMERA_PLUGINS: [&str; 2] = ["landing_marker", "hazard_cnn"];
+
+/// Where the tractor will drive in the next `duration_s`: its track sampled every half second,
+/// from a copy driven ahead (the tractor is deterministic).
+fn future_track_ne_m(
+    tractor: &Tractor,
+    duration_s: f64,
+) -> Result<Vec<[f64; 2]>, crate::tractor::TractorError> {
+    const SAMPLE_S: f64 = 0.5;
+    let mut ahead = tractor.clone();
+    let mut track = vec![ahead.pose().position_ne_m.into()];
+    let samples = (duration_s.max(0.0) / SAMPLE_S).ceil() as usize;
+    for _ in 0..samples {
+        // The same step as the flight's physics, so the copy drives the same track.
+        for _ in 0..(SAMPLE_S / PHYSICS_DT_S).round() as usize {
+            ahead.step(PHYSICS_DT_S)?;
+        }
+        track.push(ahead.pose().position_ne_m.into());
+    }
+    Ok(track)
+}
+
+/// The seed's 32 hazards on a track of at least [`FULL_HAZARD_TRACK_M`]; proportionally fewer
+/// on a shorter one, so a short test flight is not crowded.
+fn track_scatter(track_ne_m: &[[f64; 2]]) -> TrackScatterConfig {
+    let full = TrackScatterConfig::default();
+    let length_m: f64 = track_ne_m
+        .windows(2)
+        .map(|p| (p[1][0] - p[0][0]).hypot(p[1][1] - p[0][1]))
+        .sum();
+    let usable = ((length_m - full.skip_start_m) / FULL_HAZARD_TRACK_M).clamp(0.0, 1.0);
+    TrackScatterConfig {
+        count_per_class: full
+            .count_per_class
+            .map(|count| (count as f64 * usable).floor() as usize),
+        ..full
+    }
+}
+
+/// Track length that holds the full set of hazards (one every ~9 m).
+pub const FULL_HAZARD_TRACK_M: f64 = 290.0;
 
 fn pad_pose(tractor: &Tractor) -> PadPose {
     let pad = tractor.pad();

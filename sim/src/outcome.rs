@@ -46,6 +46,15 @@ pub struct SimOutcome {
     /// `None` when no hazard detector ran.
     pub hazards_seen: Option<usize>,
     pub hazards_total: usize,
+    /// Frames the hazard CNN processed.
+    pub hazard_frames: usize,
+    /// Hazard detections with no hazard of their class within 2 m.
+    pub hazard_false_detections: usize,
+    /// The inference backend the hazard CNN ran on.
+    pub hazard_backend: Option<String>,
+    /// Tasks that failed for good during the flight, with their last error; the mission flew on
+    /// without them.
+    pub failed_tasks: Vec<String>,
     /// Configured tasks that could not run in this build, and why.
     pub skipped_tasks: Vec<String>,
     /// Simulated seconds per wall-clock second.

@@ -285,6 +285,145 @@ impl HazardField {
     }
 }
 
+/// Hazards along the tractor's track, where a drone following it can see them: the seed's
+/// scenario, in which the CNN watches the field beside the tractor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackScatterConfig {
+    /// How many of each class, in the order of [`HazardClass::ALL`].
+    pub count_per_class: [usize; 3],
+    /// A hazard's centre lies this far to the left or right of the track, metres; at least far
+    /// enough that the tractor (half-width [`TRACTOR_HALF_WIDTH_M`]) passes it by.
+    pub lateral_offset_m: [f64; 2],
+    /// Least gap between two hazards' bounding circles, metres.
+    pub min_gap_m: f64,
+    /// No hazards on the first metres of the track, where the drone is still joining.
+    pub skip_start_m: f64,
+}
+
+impl Default for TrackScatterConfig {
+    fn default() -> Self {
+        Self {
+            // 32 objects, as the seed counted.
+            count_per_class: [14, 12, 6],
+            lateral_offset_m: [1.5, 3.0],
+            min_gap_m: 1.0,
+            skip_start_m: 10.0,
+        }
+    }
+}
+
+/// Half the tractor's width plus a margin: hazards stay this far clear of the track.
+pub const TRACTOR_HALF_WIDTH_M: f64 = 1.2;
+
+impl HazardField {
+    /// Places hazards at random points along `track_ne_m` (a polyline, the tractor's future
+    /// track), each offset sideways by `lateral_offset_m` and clear of every part of the track
+    /// by the tractor's half-width plus its own; vehicles park along the track, the others face
+    /// anywhere. The same seed, track and config give the same field.
+    pub fn along_track(
+        seed: u64,
+        track_ne_m: &[[f64; 2]],
+        config: &TrackScatterConfig,
+    ) -> Result<Self, SceneError> {
+        let [lateral_min_m, lateral_max_m] = config.lateral_offset_m;
+        for (name, value) in [
+            ("lateral_offset_m", lateral_min_m),
+            ("lateral_offset_m", lateral_max_m),
+            ("min_gap_m", config.min_gap_m),
+            ("skip_start_m", config.skip_start_m),
+        ] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(SceneError::Setting { name, value });
+            }
+        }
+        if lateral_max_m < lateral_min_m {
+            return Err(SceneError::Setting {
+                name: "lateral_offset_m",
+                value: lateral_max_m,
+            });
+        }
+        if let Some(bad) = track_ne_m.iter().flatten().find(|x| !x.is_finite()) {
+            return Err(SceneError::Setting {
+                name: "track_ne_m",
+                value: *bad,
+            });
+        }
+        // Cumulative arc length of the track.
+        let mut arc_m = vec![0.0];
+        for pair in track_ne_m.windows(2) {
+            let step = (pair[1][0] - pair[0][0]).hypot(pair[1][1] - pair[0][1]);
+            arc_m.push(arc_m.last().copied().unwrap_or(0.0) + step);
+        }
+        let length_m = arc_m.last().copied().unwrap_or(0.0);
+        let mut rng = SplitMix64::new(seed ^ 0x0074_7261_636b);
+        let mut hazards: Vec<Hazard> = Vec::new();
+        for class in HazardClass::ALL.into_iter().rev() {
+            let wanted = config.count_per_class[class as usize];
+            let radius_m = class.bounding_radius_m();
+            // Across the track: a parked vehicle shows its width, the others their widest side.
+            let half_across_m = match class {
+                HazardClass::Vehicle => 0.5 * class.size_m().1,
+                _ => radius_m,
+            };
+            let clearance_m = TRACTOR_HALF_WIDTH_M + half_across_m;
+            let lateral_from_m = lateral_min_m.max(clearance_m);
+            let lateral_to_m = lateral_max_m.max(lateral_from_m);
+            for placed in 0..wanted {
+                let mut spot = None;
+                for _ in 0..2000 {
+                    if length_m <= config.skip_start_m {
+                        break;
+                    }
+                    let s = config.skip_start_m + (length_m - config.skip_start_m) * rng.next_f64();
+                    let segment = arc_m.partition_point(|&a| a <= s).clamp(1, arc_m.len() - 1);
+                    let (a, b) = (track_ne_m[segment - 1], track_ne_m[segment]);
+                    let span = arc_m[segment] - arc_m[segment - 1];
+                    if span <= 0.0 {
+                        continue;
+                    }
+                    let t = (s - arc_m[segment - 1]) / span;
+                    let heading = (b[1] - a[1]).atan2(b[0] - a[0]);
+                    let side = if rng.next_f64() < 0.5 { -1.0 } else { 1.0 };
+                    let lateral =
+                        side * (lateral_from_m + (lateral_to_m - lateral_from_m) * rng.next_f64());
+                    // Left of the heading is (sin, −cos) in (north, east).
+                    let north_m = a[0] + t * (b[0] - a[0]) - lateral * heading.sin();
+                    let east_m = a[1] + t * (b[1] - a[1]) + lateral * heading.cos();
+                    let clear_of_others = hazards.iter().all(|h| {
+                        let gap = (h.north_m - north_m).hypot(h.east_m - east_m);
+                        gap >= radius_m + h.class.bounding_radius_m() + config.min_gap_m
+                    });
+                    let clear_of_track =
+                        distance_to_path_m(track_ne_m, north_m, east_m) >= clearance_m - 1e-9;
+                    if clear_of_others && clear_of_track {
+                        let yaw_rad = match class {
+                            HazardClass::Vehicle => heading,
+                            _ => (2.0 * rng.next_f64() - 1.0) * PI,
+                        };
+                        spot = Some((north_m, east_m, yaw_rad));
+                        break;
+                    }
+                }
+                let Some((north_m, east_m, yaw_rad)) = spot else {
+                    return Err(SceneError::Crowded {
+                        class,
+                        placed_of: placed,
+                        wanted,
+                    });
+                };
+                hazards.push(Hazard {
+                    class,
+                    north_m,
+                    east_m,
+                    yaw_rad,
+                    id: hazards.len() as u32,
+                });
+            }
+        }
+        Ok(Self { hazards })
+    }
+}
+
 /// Distance from (north, east) to a polyline; infinite for an empty path.
 fn distance_to_path_m(path: &[[f64; 2]], north_m: f64, east_m: f64) -> f64 {
     let to_point = |p: &[f64; 2]| (p[0] - north_m).hypot(p[1] - east_m);
@@ -625,6 +764,76 @@ mod tests {
         let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
         let pose = CameraPose::downward(Vector3::new(0.0, 0.0, -altitude_m), 0.0, 0.0, 0.0);
         (camera, pose)
+    }
+
+    #[test]
+    fn hazards_along_a_track_lie_beside_it_and_clear_of_it() {
+        // An L-shaped track: 200 m north, then 100 m east.
+        let mut track = Vec::new();
+        for i in 0..=200 {
+            track.push([f64::from(i), 0.0]);
+        }
+        for i in 1..=100 {
+            track.push([200.0, f64::from(i)]);
+        }
+        let config = TrackScatterConfig::default();
+        let field = HazardField::along_track(3, &track, &config).unwrap();
+        assert_eq!(field.hazards.len(), 32);
+        for class in HazardClass::ALL {
+            let count = field.hazards.iter().filter(|h| h.class == class).count();
+            assert_eq!(count, config.count_per_class[class as usize]);
+        }
+        for h in &field.hazards {
+            // Brute force: the distance to the densely sampled track.
+            let distance = track
+                .iter()
+                .map(|p| (p[0] - h.north_m).hypot(p[1] - h.east_m))
+                .fold(f64::INFINITY, f64::min);
+            let half_across = match h.class {
+                HazardClass::Vehicle => 1.0,
+                _ => h.class.bounding_radius_m(),
+            };
+            assert!(
+                distance >= TRACTOR_HALF_WIDTH_M + half_across - 1e-6,
+                "{h:?}: {distance}"
+            );
+            assert!(
+                distance <= 3.0 + 1e-6,
+                "{h:?} is {distance} m off the track"
+            );
+            // Not on the first 10 m (the first leg runs north from 0).
+            assert!(h.north_m >= 10.0 - 1e-9, "{h:?}");
+            if h.class == HazardClass::Vehicle {
+                // Parked along its leg.
+                let along = [0.0, std::f64::consts::FRAC_PI_2];
+                assert!(along.iter().any(|a| (h.yaw_rad - a).abs() < 1e-9), "{h:?}");
+            }
+        }
+        for (i, a) in field.hazards.iter().enumerate() {
+            for b in &field.hazards[i + 1..] {
+                let gap = (a.north_m - b.north_m).hypot(a.east_m - b.east_m);
+                let least = a.class.bounding_radius_m() + b.class.bounding_radius_m() + 1.0;
+                assert!(gap >= least - 1e-9);
+            }
+        }
+        assert_eq!(field, HazardField::along_track(3, &track, &config).unwrap());
+        assert_ne!(field, HazardField::along_track(4, &track, &config).unwrap());
+        // A track too short to hold them, and bad settings, are named errors.
+        assert!(matches!(
+            HazardField::along_track(3, &track[..5], &config),
+            Err(SceneError::Crowded { .. })
+        ));
+        let bad = TrackScatterConfig {
+            lateral_offset_m: [3.0, 1.0],
+            ..config
+        };
+        assert!(matches!(
+            HazardField::along_track(3, &track, &bad),
+            Err(SceneError::Setting {
+                name: "lateral_offset_m",
+                ..
+            })
+        ));
     }
 
     #[test]

@@ -52,11 +52,71 @@ fn no_wind_straight_path_lands_within_15_cm() {
     );
     assert!(outcome.flight_energy_wh > 0.5 && outcome.companion_energy_wh > 0.0);
     assert!(outcome.battery_left_fraction < 1.0);
-    // The hazard CNN is not in this build: reported, not silently dropped.
-    assert!(outcome
-        .skipped_tasks
-        .iter()
-        .any(|t| t.starts_with("hazard")));
+    // Every task flew, the hazard CNN on the CPU backend of this build.
+    assert!(
+        outcome.skipped_tasks.is_empty(),
+        "{:?}",
+        outcome.skipped_tasks
+    );
+    assert!(
+        outcome.failed_tasks.is_empty(),
+        "{:?}",
+        outcome.failed_tasks
+    );
+    assert_eq!(outcome.hazard_backend.as_deref(), Some("tract-cpu"));
+    assert!(outcome.hazard_frames > 0);
+}
+
+#[test]
+fn hazards_beside_the_track_are_seen_by_the_shipped_model() {
+    let (model, registry) = reference();
+    let options = SimOptions {
+        tracking_s: Some(60.0),
+        fixed_levels: vec![("hazard".into(), 4.0)],
+        ..SimOptions::default()
+    };
+    let outcome = simulate(&model, &registry, &options).unwrap();
+    // 90 m of track holds 7 of the seed's 32 hazards (see FULL_HAZARD_TRACK_M).
+    assert_eq!(outcome.hazards_total, 7);
+    let seen = outcome.hazards_seen.unwrap();
+    assert!(seen >= 6, "saw {seen} of 7: {outcome:#?}");
+    // At 4 fps for the transit and 60 s of tracking, a few false alarms at most.
+    assert!(outcome.hazard_frames >= 240, "{}", outcome.hazard_frames);
+    assert!(
+        outcome.hazard_false_detections <= 10,
+        "{} false detections",
+        outcome.hazard_false_detections
+    );
+    assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
+}
+
+#[test]
+fn a_corrupt_hazard_model_fails_the_task_and_the_mission_flies_on() {
+    let (mut model, registry) = reference();
+    let dir = tempfile::tempdir().unwrap();
+    let corrupt = dir.path().join("hazard.onnx");
+    std::fs::write(&corrupt, b"not an ONNX model").unwrap();
+    let hazard = model
+        .config
+        .tasks
+        .iter_mut()
+        .find(|t| t.plugin == "hazard_cnn")
+        .unwrap();
+    hazard.params.insert(
+        "model".into(),
+        toml::Value::String(corrupt.to_str().unwrap().into()),
+    );
+    let outcome = simulate(&model, &registry, &short(3)).unwrap();
+    assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
+    assert_eq!(outcome.hazards_seen, None);
+    assert_eq!(outcome.hazard_frames, 0);
+    let [failed] = outcome.failed_tasks.as_slice() else {
+        panic!("{:?}", outcome.failed_tasks);
+    };
+    assert!(
+        failed.starts_with("hazard: ") && failed.contains("not a usable ONNX model"),
+        "{failed}"
+    );
 }
 
 #[test]

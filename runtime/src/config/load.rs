@@ -109,7 +109,12 @@ pub fn load_str(
     }
 
     let mut diagnostics = Vec::new();
-    let config = deserialize_sections(root.get_ref(), &mut diagnostics);
+    let mut config = deserialize_sections(root.get_ref(), &mut diagnostics);
+    if let (Some(config), Some(base_dir)) = (config.as_mut(), base_dir) {
+        for task in &mut config.tasks {
+            task.config_dir = Some(base_dir.to_path_buf());
+        }
+    }
     if let Some(config) = &config {
         for issue in validate(config, plugins) {
             let span = span_of(&root, &issue.path);

@@ -241,6 +241,10 @@ pub struct TaskConfig {
     /// Free settings handed to the plugin.
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub params: toml::Table,
+    /// Folder of the config file the task came from: plugins resolve relative paths in their
+    /// params (a model file) against it. `None` for config text parsed without a file.
+    #[serde(skip)]
+    pub config_dir: Option<std::path::PathBuf>,
 }
 
 impl TaskConfig {

@@ -421,6 +421,7 @@ impl TelemetryState {
             velocity_ned_m_s: self.velocity_ned_m_s.unwrap_or_else(Vector3::zeros),
             acceleration_ned_m_s2: self.acceleration_ned_m_s2,
             height_above_pad_m,
+            position_ned_m: Some(position),
             landed: self.landed,
         })
     }

@@ -1,5 +1,6 @@
 //! The task plugins built into qosrt, and the registry that holds them.
 
+pub mod hazard_cnn;
 pub mod kalman_tracker;
 pub mod landing_guidance;
 pub mod landing_marker;
@@ -37,6 +38,7 @@ pub fn builtin_registry() -> Result<PluginRegistry, RegistryError> {
     landing_marker::register(&mut registry)?;
     kalman_tracker::register(&mut registry)?;
     landing_guidance::register(&mut registry)?;
+    hazard_cnn::register(&mut registry)?;
     Ok(registry)
 }
 
@@ -128,6 +130,7 @@ mod tests {
                 velocity_ned_m_s: Vector3::zeros(),
                 acceleration_ned_m_s2: Vector3::zeros(),
                 height_above_pad_m: HEIGHT_M,
+                position_ned_m: Some(Vector3::new(0.0, 0.0, -HEIGHT_M)),
                 landed: false,
             };
             self.state.as_ref().unwrap().publish(ctx.now(), state);

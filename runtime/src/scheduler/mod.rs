@@ -29,7 +29,8 @@
 //! registry.register("ping", |_params, _config| Ok(Box::new(Ping))).unwrap();
 //! # let config = TaskConfig { name: "ping".into(), plugin: "ping".into(), resource: Resource::Cpu,
 //! #     cores: vec![], phases: vec!["tracking".into()], weight: 1.0, knob: Knob::PeriodMs,
-//! #     levels: vec![100.0, 20.0], utility: vec![0.5, 1.0], restart: None, params: Default::default() };
+//! #     levels: vec![100.0, 20.0], utility: vec![0.5, 1.0], restart: None, params: Default::default(),
+//! #     config_dir: None };
 //! let mut scheduler = SchedulerBuilder::new(&registry).task(&config).build_virtual().unwrap();
 //! scheduler.run_for(std::time::Duration::from_secs(1)).unwrap();
 //! assert_eq!(scheduler.task_stats("ping").unwrap().activations, 51); // t = 0, 20, …, 1000 ms

@@ -155,6 +155,7 @@ fn probe(name: &str, knob: Knob, levels: &[f64], params: &str) -> TaskConfig {
         levels: levels.to_vec(),
         restart: None,
         params: toml::from_str(params).unwrap(),
+        config_dir: None,
     }
 }
 

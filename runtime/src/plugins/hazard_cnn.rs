@@ -1,0 +1,648 @@
+//! The `hazard_cnn` plugin: a YOLO-style ONNX detector watching the field for people, animals and
+//! vehicles at the task's QoS frame rate, each detection placed on the ground in local NED.
+//!
+//! The model is the one shipped with qosrt (trained on the simulator's renders, compiled into
+//! the binary) unless `model = "path.onnx"` names a user's own export; `classes`, the input size,
+//! the output layout and the thresholds make any YOLOv3/v5/v8-style export work. A model that
+//! cannot be loaded fails the task at start-up with a named error; the scheduler reports it and
+//! the mission flies on without hazard detection.
+
+use crate::bus::{Publisher, Subscriber};
+use crate::catalog::BUILTIN_PLUGINS;
+use crate::config::Resource;
+use crate::inference::{
+    open_backend, resolve_path, BackendChoice, BackendOptions, InferenceBackend, ModelSource,
+};
+use crate::registry::{PluginRegistry, RegistryError};
+use crate::task::{parse_params, Task, TaskContext, TaskError};
+use crate::topics::{
+    CameraFrame, HazardDetection, HazardReport, MissionPhase, VehicleState, CAMERA_FRAME, HAZARDS,
+    MISSION_PHASE, VEHICLE_STATE,
+};
+use algorithms::estimation::projection::pad_relative_to_uav_ned_m;
+use algorithms::vision::camera::PinholeCamera;
+use algorithms::vision::yolo::{
+    decode, letterbox_gray, non_maximum_suppression, Detection, YoloFormat,
+};
+use nalgebra::Vector3;
+use serde::Deserialize;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+pub const PLUGIN_NAME: &str = "hazard_cnn";
+
+/// The detector shipped with qosrt: `cargo run --release -p hazard_train` makes it.
+pub const SHIPPED_MODEL: ModelSource = ModelSource::Embedded {
+    name: "models/hazard_yolo.onnx",
+    bytes: include_bytes!(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../models/hazard_yolo.onnx"
+    )),
+};
+/// The shipped model's classes, in its output's order.
+pub const SHIPPED_CLASSES: [&str; 3] = ["person", "animal", "vehicle"];
+
+/// How the model lays out one candidate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum OutputFormat {
+    /// `[cx, cy, w, h, objectness, classes…]` (YOLOv3/v5 exports, the shipped model).
+    Objectness,
+    /// `[cx, cy, w, h, classes…]` (YOLOv8 exports).
+    ScoresOnly,
+}
+
+/// `[task.params]` of the plugin.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Params {
+    /// The ONNX file, relative to the config file; the shipped model when absent.
+    #[serde(default)]
+    model: Option<PathBuf>,
+    /// Class names in the model's output order.
+    #[serde(default = "default_classes")]
+    classes: Vec<String>,
+    #[serde(default = "default_confidence")]
+    confidence_threshold: f64,
+    /// Boxes of one class overlapping a more confident one by more than this are dropped.
+    #[serde(default = "default_iou")]
+    iou_threshold: f64,
+    #[serde(default = "default_format")]
+    output_format: OutputFormat,
+    /// Network input size, for models that leave it open.
+    #[serde(default)]
+    input_width_px: Option<usize>,
+    #[serde(default)]
+    input_height_px: Option<usize>,
+    /// `auto` (CUDA when built in and present, else CPU), `cpu` or `cuda`.
+    #[serde(default)]
+    backend: BackendChoice,
+    /// `libonnxruntime.so` for the CUDA backend.
+    #[serde(default)]
+    onnxruntime_library: Option<PathBuf>,
+    /// The downward camera, to place detections on the ground.
+    #[serde(default = "default_fov")]
+    camera_horizontal_fov_deg: f64,
+    /// At most this many detections per frame are reported, most confident first.
+    #[serde(default = "default_max_detections")]
+    max_detections: usize,
+    /// Frames taken lower than this above the ground are not looked at: a model sees nonsense
+    /// outside the heights it was trained on (the shipped one: 4–12 m), e.g. the field's grass
+    /// from a take-off or the tractor's roof filling the view while landing.
+    #[serde(default = "default_min_height")]
+    min_height_m: f64,
+}
+
+fn default_classes() -> Vec<String> {
+    SHIPPED_CLASSES.iter().map(|c| c.to_string()).collect()
+}
+fn default_confidence() -> f64 {
+    0.4
+}
+fn default_iou() -> f64 {
+    0.45
+}
+fn default_format() -> OutputFormat {
+    OutputFormat::Objectness
+}
+fn default_fov() -> f64 {
+    60.0
+}
+fn default_max_detections() -> usize {
+    100
+}
+fn default_min_height() -> f64 {
+    3.0
+}
+
+pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
+    let info = BUILTIN_PLUGINS
+        .iter()
+        .find(|p| p.name == PLUGIN_NAME)
+        .cloned()
+        .expect("the catalogue lists every built-in plugin");
+    // Said once per task, not at every restart.
+    let cpu_fallback_said = Arc::new(AtomicBool::new(false));
+    registry.register_plugin(info, move |params, config| {
+        let mut task = HazardCnnTask::new(
+            parse_params(params)?,
+            config.config_dir.as_deref(),
+            config.resource,
+            cpu_fallback_said.clone(),
+        )?;
+        task.phases = config.phases.clone();
+        Ok(Box::new(task) as Box<dyn Task>)
+    })?;
+    Ok(())
+}
+
+pub struct HazardCnnTask {
+    source: ModelSource,
+    backend_options: BackendOptions,
+    classes: Vec<Arc<str>>,
+    format: YoloFormat,
+    confidence_threshold: f64,
+    iou_threshold: f64,
+    horizontal_fov_rad: f64,
+    max_detections: usize,
+    min_height_m: f64,
+    /// The mission phases the task watches in; outside them it looks at no frame.
+    phases: Vec<String>,
+    resource: Resource,
+    cpu_fallback_said: Arc<AtomicBool>,
+    backend: Option<Box<dyn InferenceBackend>>,
+    frames: Option<Subscriber<CameraFrame>>,
+    vehicle: Option<Subscriber<VehicleState>>,
+    output: Option<Publisher<HazardReport>>,
+    mission_phase: Option<Subscriber<MissionPhase>>,
+}
+
+impl HazardCnnTask {
+    fn new(
+        params: Params,
+        config_dir: Option<&std::path::Path>,
+        resource: Resource,
+        cpu_fallback_said: Arc<AtomicBool>,
+    ) -> Result<Self, TaskError> {
+        let bad = |message: String| Err(TaskError::Params(message));
+        if params.classes.is_empty() || params.classes.iter().any(|c| c.trim().is_empty()) {
+            return bad("classes must list at least one non-empty class name".into());
+        }
+        for (name, value) in [
+            ("confidence_threshold", params.confidence_threshold),
+            ("iou_threshold", params.iou_threshold),
+        ] {
+            if !(value.is_finite() && (0.0..=1.0).contains(&value)) {
+                return bad(format!("{name} must be within [0, 1], got {value}"));
+            }
+        }
+        let fov = params.camera_horizontal_fov_deg;
+        if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
+            return bad(format!(
+                "camera_horizontal_fov_deg must be within (0, 180), got {fov}"
+            ));
+        }
+        if !(params.min_height_m.is_finite() && params.min_height_m >= 0.0) {
+            return bad(format!(
+                "min_height_m must be a height ≥ 0, got {}",
+                params.min_height_m
+            ));
+        }
+        if params.max_detections == 0 {
+            return bad("max_detections must be at least 1".into());
+        }
+        let input_size_px = match (params.input_height_px, params.input_width_px) {
+            (Some(h), Some(w)) => Some((h, w)),
+            (None, None) => None,
+            _ => return bad("set both input_width_px and input_height_px, or neither".into()),
+        };
+        let source = match &params.model {
+            Some(path) => ModelSource::File(resolve_path(path, config_dir)),
+            None => {
+                if params.classes != default_classes() {
+                    return bad(format!(
+                        "the shipped model detects {}; name your own model with `model = \"….onnx\"` to use other classes",
+                        SHIPPED_CLASSES.join(", ")
+                    ));
+                }
+                SHIPPED_MODEL
+            }
+        };
+        Ok(Self {
+            source,
+            backend_options: BackendOptions {
+                choice: params.backend,
+                input_size_px,
+                onnxruntime_library: params
+                    .onnxruntime_library
+                    .map(|p| resolve_path(&p, config_dir)),
+            },
+            classes: params
+                .classes
+                .iter()
+                .map(|c| Arc::from(c.as_str()))
+                .collect(),
+            format: match params.output_format {
+                OutputFormat::Objectness => YoloFormat::WithObjectness,
+                OutputFormat::ScoresOnly => YoloFormat::ClassScoresOnly,
+            },
+            confidence_threshold: params.confidence_threshold,
+            iou_threshold: params.iou_threshold,
+            horizontal_fov_rad: fov.to_radians(),
+            max_detections: params.max_detections,
+            min_height_m: params.min_height_m,
+            phases: Vec::new(),
+            resource,
+            cpu_fallback_said,
+            backend: None,
+            frames: None,
+            vehicle: None,
+            output: None,
+            mission_phase: None,
+        })
+    }
+
+    /// Boxes of one frame: preprocess, infer, decode, suppress.
+    fn detect(
+        backend: &mut dyn InferenceBackend,
+        image: &algorithms::vision::image::ImageView<'_>,
+        format: YoloFormat,
+        classes: usize,
+        confidence_threshold: f64,
+        iou_threshold: f64,
+    ) -> Result<Vec<Detection>, TaskError> {
+        let spec = backend.input();
+        let (grey, letterbox) = letterbox_gray(image, spec.width_px, spec.height_px);
+        let input = if spec.channels == 3 {
+            // A colour model sees the grey frame on all three channels.
+            grey.repeat(3)
+        } else {
+            grey
+        };
+        let output = backend.run(&input).map_err(TaskError::other)?;
+        let detections = decode(
+            &output.values,
+            &output.shape,
+            format,
+            classes,
+            confidence_threshold,
+            &letterbox,
+        )
+        .map_err(TaskError::other)?;
+        non_maximum_suppression(detections, iou_threshold).map_err(TaskError::other)
+    }
+}
+
+/// Where the ground point seen at pixel (u, v) lies, local NED with down = 0 at the ground.
+fn ground_position_ned_m(
+    camera: &PinholeCamera,
+    vehicle: &VehicleState,
+    u_px: f64,
+    v_px: f64,
+) -> Option<Vector3<f64>> {
+    let position = vehicle.position_ned_m?;
+    // The field is flat and at the home point's level: the camera is −down above it.
+    let height_above_ground_m = -position.z;
+    let relative =
+        pad_relative_to_uav_ned_m(camera, &vehicle.attitude, height_above_ground_m, u_px, v_px)
+            .ok()?;
+    Some(Vector3::new(
+        position.x + relative.x,
+        position.y + relative.y,
+        0.0,
+    ))
+}
+
+impl Task for HazardCnnTask {
+    fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
+        let opened = open_backend(&self.source, &self.backend_options).map_err(TaskError::other)?;
+        let mut backend = opened.backend;
+        // One inference on a blank frame: a model whose output does not fit the classes and
+        // layout fails now, at start-up, not in flight.
+        let spec = backend.input();
+        let blank = algorithms::vision::image::GrayImage::filled(
+            spec.width_px.max(1),
+            spec.height_px.max(1),
+            0,
+        )
+        .map_err(TaskError::other)?;
+        Self::detect(
+            backend.as_mut(),
+            &blank.view(),
+            self.format,
+            self.classes.len(),
+            1.0,
+            self.iou_threshold,
+        )
+        .map_err(|e| TaskError::failed(format!("model {}: {e}", self.source)))?;
+        if let Some(reason) = opened.cpu_fallback_reason {
+            if self.resource == Resource::Gpu
+                && !self.cpu_fallback_said.swap(true, Ordering::SeqCst)
+            {
+                tracing::warn!(
+                    task = ctx.name(),
+                    %reason,
+                    "no GPU backend: the hazard CNN runs on the CPU (tract)"
+                );
+            }
+        }
+        tracing::info!(task = ctx.name(), model = %self.source, backend = backend.name(), input = ?spec, "hazard model loaded");
+        self.backend = Some(backend);
+        self.frames = Some(ctx.bus().subscriber(CAMERA_FRAME)?);
+        self.vehicle = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
+        self.output = Some(ctx.bus().publisher(HAZARDS)?);
+        self.mission_phase = Some(ctx.bus().subscriber(MISSION_PHASE)?);
+        Ok(())
+    }
+
+    fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
+        let (Some(backend), Some(frames), Some(vehicle), Some(output)) = (
+            self.backend.as_mut(),
+            self.frames.as_mut(),
+            self.vehicle.as_mut(),
+            self.output.as_ref(),
+        ) else {
+            return Err(TaskError::failed("stepped before start"));
+        };
+        let Some(frame) = frames.take_new() else {
+            return Ok(());
+        };
+        // Outside its phases (a mission that publishes them), the task watches nothing.
+        let phase = self.mission_phase.as_mut().and_then(|p| p.latest());
+        if let Some(phase) = phase {
+            if !self.phases.is_empty() && !self.phases.iter().any(|p| **p == *phase.value.name) {
+                return Ok(());
+            }
+        }
+        let state = vehicle.latest().map(|m| m.value);
+        let height_m = state.as_ref().and_then(|s| s.position_ned_m).map(|p| -p.z);
+        if height_m.is_some_and(|h| h < self.min_height_m) {
+            return Ok(());
+        }
+        let started = Instant::now();
+        let image = frame.value.image.view();
+        let mut detections = Self::detect(
+            backend.as_mut(),
+            &image,
+            self.format,
+            self.classes.len(),
+            self.confidence_threshold,
+            self.iou_threshold,
+        )?;
+        detections.truncate(self.max_detections);
+        let camera =
+            PinholeCamera::from_fov(image.width(), image.height(), self.horizontal_fov_rad)
+                .map_err(TaskError::other)?;
+        let detections = detections
+            .into_iter()
+            .map(|d| {
+                let (u, v) = d.bbox.centre();
+                HazardDetection {
+                    class_id: d.class_id,
+                    class_name: self.classes[d.class_id].clone(),
+                    confidence: d.confidence,
+                    bbox: d.bbox,
+                    position_ned_m: state
+                        .as_ref()
+                        .and_then(|s| ground_position_ned_m(&camera, s, u, v)),
+                }
+            })
+            .collect();
+        output.publish(
+            ctx.now(),
+            HazardReport {
+                frame_index: frame.value.frame_index,
+                capture_time_s: frame.stamp.as_secs_f64(),
+                detections,
+                backend: backend.name(),
+                inference_ms: started.elapsed().as_secs_f64() * 1e3,
+            },
+        );
+        Ok(())
+    }
+
+    fn stop(&mut self) {
+        self.backend = None;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bus::Bus;
+    use crate::clock::Timestamp;
+    use crate::config::Knob;
+    use crate::inference::InferenceError;
+    use crate::task::{MissionHealth, QosLevel};
+
+    fn params(text: &str) -> Params {
+        parse_params(&toml::from_str(text).unwrap()).unwrap()
+    }
+
+    fn task(text: &str) -> Result<HazardCnnTask, TaskError> {
+        HazardCnnTask::new(
+            params(text),
+            None,
+            Resource::Gpu,
+            Arc::new(AtomicBool::new(false)),
+        )
+    }
+
+    /// Runs `start` on a fresh bus, as the scheduler would.
+    fn start(task: &mut HazardCnnTask) -> Result<(), TaskError> {
+        let bus = Bus::new();
+        let health = MissionHealth::new(vec!["hazard".into()]);
+        let level = QosLevel {
+            index: 0,
+            knob: Knob::RateFps,
+            value: 1.0,
+            period_ms: 1000.0,
+        };
+        let mut ctx = TaskContext::new("hazard", Timestamp::ZERO, &level, &bus, &health, 1);
+        task.start(&mut ctx)
+    }
+
+    fn shipped_model_path() -> String {
+        concat!(env!("CARGO_MANIFEST_DIR"), "/../models/hazard_yolo.onnx").to_string()
+    }
+
+    #[test]
+    fn bad_params_are_named() {
+        let message = |text: &str| task(text).err().unwrap().to_string();
+        assert!(message("classes = []").contains("at least one"));
+        assert!(message("confidence_threshold = 1.5").contains("confidence_threshold"));
+        assert!(message("iou_threshold = -0.1").contains("iou_threshold"));
+        assert!(message("input_width_px = 320").contains("input_height_px"));
+        assert!(message("camera_horizontal_fov_deg = 0.0").contains("camera_horizontal_fov_deg"));
+        assert!(message("max_detections = 0").contains("max_detections"));
+        assert!(message("min_height_m = -1.0").contains("min_height_m"));
+        // The shipped model knows its own classes only.
+        let other = message("classes = [\"cow\"]");
+        assert!(
+            other.contains("person, animal, vehicle") && other.contains("model"),
+            "{other}"
+        );
+        let typo = parse_params::<Params>(&toml::from_str("confidence = 0.5").unwrap())
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(typo.contains("confidence"), "{typo}");
+    }
+
+    #[test]
+    fn a_missing_or_corrupt_model_is_a_named_error_at_start_up() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("missing.onnx");
+        let mut hazard = task(&format!("model = {:?}", missing.to_str().unwrap())).unwrap();
+        let error = start(&mut hazard).unwrap_err().to_string();
+        assert!(
+            error.contains("cannot read the model file") && error.contains("missing.onnx"),
+            "{error}"
+        );
+        let corrupt = dir.path().join("corrupt.onnx");
+        std::fs::write(
+            &corrupt,
+            b"\x08\x07garbage that is not a protobuf model\xff\xfe",
+        )
+        .unwrap();
+        let mut hazard = task(&format!("model = {:?}", corrupt.to_str().unwrap())).unwrap();
+        let error = start(&mut hazard).unwrap_err().to_string();
+        assert!(
+            error.contains("not a usable ONNX model") && error.contains("corrupt.onnx"),
+            "{error}"
+        );
+        // Relative paths resolve against the config's folder.
+        std::fs::copy(shipped_model_path(), dir.path().join("mine.onnx")).unwrap();
+        let mut hazard = HazardCnnTask::new(
+            params("model = \"mine.onnx\""),
+            Some(dir.path()),
+            Resource::Cpu,
+            Arc::new(AtomicBool::new(false)),
+        )
+        .unwrap();
+        start(&mut hazard).unwrap();
+    }
+
+    #[test]
+    fn a_model_whose_output_does_not_fit_the_classes_is_refused_at_start_up() {
+        // The shipped model has 3 classes; told it has 2, its 8-wide rows fit neither layout.
+        let text = format!(
+            "model = {:?}\nclasses = [\"a\", \"b\"]",
+            shipped_model_path()
+        );
+        let mut hazard = task(&text).unwrap();
+        let error = start(&mut hazard).unwrap_err().to_string();
+        assert!(error.contains("does not fit 2 classes"), "{error}");
+        // Told its input is another size than it was exported with.
+        let text = format!(
+            "model = {:?}\ninput_width_px = 640\ninput_height_px = 480",
+            shipped_model_path()
+        );
+        let mut hazard = task(&text).unwrap();
+        let error = start(&mut hazard).unwrap_err().to_string();
+        assert!(
+            error.contains("240×320") && error.contains("480×640"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn without_a_gpu_backend_auto_runs_on_the_cpu_and_says_why() {
+        let options = BackendOptions::default();
+        let opened = open_backend(&SHIPPED_MODEL, &options).unwrap();
+        assert_eq!(opened.backend.name(), "tract-cpu");
+        let spec = opened.backend.input();
+        assert_eq!(
+            (spec.channels, spec.height_px, spec.width_px),
+            (1, 240, 320)
+        );
+        if cfg!(feature = "cuda") {
+            // With the feature, whether CUDA is there depends on the machine.
+            return;
+        }
+        let reason = opened.cpu_fallback_reason.unwrap();
+        assert!(reason.contains("`cuda` feature"), "{reason}");
+        let cuda = BackendOptions {
+            choice: BackendChoice::Cuda,
+            ..BackendOptions::default()
+        };
+        assert!(matches!(
+            open_backend(&SHIPPED_MODEL, &cuda),
+            Err(InferenceError::Unavailable {
+                backend: "CUDA",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn detections_are_placed_on_the_ground_under_the_camera() {
+        // Level flight 10 m up at (5, −3): the image centre is straight below, and a pixel
+        // offset lands where the pinhole geometry says.
+        let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
+        let mut vehicle = VehicleState {
+            attitude: algorithms::estimation::projection::Attitude::new(0.0, 0.0, 0.0),
+            velocity_ned_m_s: Vector3::zeros(),
+            acceleration_ned_m_s2: Vector3::zeros(),
+            height_above_pad_m: 9.0,
+            position_ned_m: Some(Vector3::new(5.0, -3.0, -10.0)),
+            landed: false,
+        };
+        let (cx, cy) = (camera.cx_px, camera.cy_px);
+        let below = ground_position_ned_m(&camera, &vehicle, cx, cy).unwrap();
+        assert!(
+            (below - Vector3::new(5.0, -3.0, 0.0)).norm() < 1e-9,
+            "{below}"
+        );
+        // 100 px right of centre: tan = 100 / f; with yaw 0 the image's right is east.
+        let right = ground_position_ned_m(&camera, &vehicle, cx + 100.0, cy).unwrap();
+        let expected_east_m = -3.0 + 10.0 * 100.0 / camera.fx_px;
+        assert!((right.y - expected_east_m).abs() < 1e-9 && (right.x - 5.0).abs() < 1e-9);
+        // Without a position, or on the ground, nothing is placed.
+        vehicle.position_ned_m = Some(Vector3::new(5.0, -3.0, 0.0));
+        assert!(ground_position_ned_m(&camera, &vehicle, cx, cy).is_none());
+        vehicle.position_ned_m = None;
+        assert!(ground_position_ned_m(&camera, &vehicle, cx, cy).is_none());
+    }
+
+    #[test]
+    fn frames_outside_the_task_phases_or_below_its_height_are_not_looked_at() {
+        let bus = Bus::new();
+        let health = MissionHealth::new(vec!["hazard".into()]);
+        let level = QosLevel {
+            index: 0,
+            knob: Knob::RateFps,
+            value: 1.0,
+            period_ms: 1000.0,
+        };
+        let mut hazard = task("").unwrap();
+        hazard.phases = vec!["tracking".into()];
+        let mut ctx = TaskContext::new("hazard", Timestamp::ZERO, &level, &bus, &health, 1);
+        hazard.start(&mut ctx).unwrap();
+        let frames = bus.publisher::<CameraFrame>(CAMERA_FRAME).unwrap();
+        let vehicle = bus.publisher::<VehicleState>(VEHICLE_STATE).unwrap();
+        let phase = bus.publisher::<MissionPhase>(MISSION_PHASE).unwrap();
+        let mut reports = bus.subscriber::<HazardReport>(HAZARDS).unwrap();
+        let image = Arc::new(algorithms::vision::image::GrayImage::filled(640, 480, 90).unwrap());
+        let mut frame_index = 0;
+        // One frame at `height_m` in `phase_name`: did the task report on it?
+        let mut look = |height_m: f64, phase_name: &str| {
+            let now = Timestamp::from_millis(1000 * (frame_index + 1));
+            phase.publish(
+                now,
+                MissionPhase {
+                    index: 0,
+                    name: Arc::from(phase_name),
+                },
+            );
+            vehicle.publish(
+                now,
+                VehicleState {
+                    attitude: Default::default(),
+                    velocity_ned_m_s: Vector3::zeros(),
+                    acceleration_ned_m_s2: Vector3::zeros(),
+                    height_above_pad_m: height_m,
+                    position_ned_m: Some(Vector3::new(0.0, 0.0, -height_m)),
+                    landed: false,
+                },
+            );
+            frames.publish(
+                now,
+                CameraFrame {
+                    frame_index,
+                    image: image.clone(),
+                },
+            );
+            frame_index += 1;
+            let mut ctx = TaskContext::new("hazard", now, &level, &bus, &health, 1);
+            hazard.step(&mut ctx).unwrap();
+            reports.take_new().is_some()
+        };
+        assert!(look(8.0, "tracking"));
+        assert!(!look(2.0, "tracking"), "below min_height_m");
+        assert!(!look(8.0, "landing"), "outside the task's phases");
+        assert!(look(3.5, "tracking"));
+    }
+}
