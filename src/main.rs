@@ -6,6 +6,7 @@ mod frames;
 mod model;
 mod plan;
 mod plot;
+mod profile;
 mod run;
 mod sim;
 
@@ -88,6 +89,10 @@ enum Command {
         #[arg(long, value_name = "NAME")]
         phase: Option<String>,
     },
+    /// Measure this board's power at each combination of the tasks' QoS levels with its power
+    /// meter (Jetson INA3221, RAPL, hwmon, NVML or an external meter's log) and write the
+    /// profile `plan` reads; or build one from traces measured by hand (--from-csv).
+    Profile(profile::ProfileArgs),
     /// Plan the mission's QoS levels offline to fit the battery.
     Plan {
         /// The mission config.
@@ -109,10 +114,21 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // Warnings and errors from the runtime (a task that failed, the hazard CNN falling back to
+    // the CPU) reach the user on stderr; RUST_LOG=info (or debug) shows every QoS and mode change.
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .init();
     let cli = Cli::parse();
     match cli.command {
         Command::Check { file, json } => check::run(&file, json),
         Command::Sim(args) => sim::run(&args),
+        Command::Profile(args) => profile::run(&args),
         Command::Detect {
             images,
             layout,

@@ -23,6 +23,12 @@ pub struct Profile {
     /// Free text naming where the figures come from.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub source: Option<String>,
+    /// The board's mean power with none of the tasks running, measured with the samples: what
+    /// the config's `power_model.idle_power_w` wants where profiles add up.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub idle_power_w: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub idle_power_std_w: Option<f64>,
     /// Knob names, `task.knob`; every sample's `knobs` follows this order.
     pub knobs: Vec<String>,
     #[serde(rename = "sample")]
@@ -143,6 +149,10 @@ struct RawProfile {
     sample_rate_hz: Option<Spanned<f64>>,
     #[serde(default)]
     source: Option<String>,
+    #[serde(default)]
+    idle_power_w: Option<Spanned<f64>>,
+    #[serde(default)]
+    idle_power_std_w: Option<Spanned<f64>>,
     knobs: Spanned<Vec<Spanned<String>>>,
     #[serde(default)]
     sample: Vec<RawSample>,
@@ -185,6 +195,7 @@ impl Profile {
     /// meter = "INA3221"
     /// sample_rate_hz = 10.0          # optional
     /// source = "where the figures come from"   # optional
+    /// idle_power_w = 1.9             # optional: no task running; and idle_power_std_w
     /// knobs = ["hazard.rate_fps", "detection.rate_fps"]
     ///
     /// [[sample]]
@@ -208,6 +219,10 @@ impl Profile {
         }
         let sample_rate_hz =
             opt_checked(raw.sample_rate_hz, |v| check_positive("sample_rate_hz", v))?;
+        let idle_power_w = opt_checked(raw.idle_power_w, |v| check_positive("idle_power_w", v))?;
+        let idle_power_std_w = opt_checked(raw.idle_power_std_w, |v| {
+            check_non_negative("idle_power_std_w", v)
+        })?;
 
         let knobs_span = raw.knobs.span();
         let mut knobs: Vec<String> = Vec::new();
@@ -296,6 +311,8 @@ impl Profile {
             meter,
             sample_rate_hz,
             source: raw.source,
+            idle_power_w,
+            idle_power_std_w,
             knobs,
             samples,
         })
@@ -649,6 +666,8 @@ impl Profile {
             meter: "powprofiler".to_string(),
             sample_rate_hz: Some(sample_rate_hz),
             source: None,
+            idle_power_w: None,
+            idle_power_std_w: None,
             knobs: knob_names.iter().map(|s| s.to_string()).collect(),
             samples,
         })
@@ -695,6 +714,59 @@ fn channel_stats(values: impl Iterator<Item = f64> + Clone, n: usize) -> Channel
     ChannelStats {
         mean_w,
         std_w: (ss / (n as f64 - 1.0)).sqrt(),
+    }
+}
+
+impl ChannelStats {
+    /// Mean and sample standard deviation of `values_w`; `None` below 2 values, where a
+    /// spread means nothing.
+    pub fn of(values_w: &[f64]) -> Option<ChannelStats> {
+        (values_w.len() >= 2).then(|| channel_stats(values_w.iter().copied(), values_w.len()))
+    }
+}
+
+impl Profile {
+    /// The profile as a powprofiler grid CSV, for exchange: knob columns `200, 201, …`, then
+    /// `100` (power), `101`/`102` (CPU/GPU power) where every sample has them, and `130` where
+    /// every sample has a duration. Column 130 is what powprofiler and the seed's files put
+    /// there, the plain sum of the readings: `power_w × duration_s × sample_rate_hz`, so that
+    /// [`Profile::from_powprofiler_csv_with_rate`] at this profile's rate (powprofiler's 10 Hz
+    /// when it has none) gives the durations back. Board, meter, source, spread and idle power
+    /// have no column and are left out.
+    pub fn to_powprofiler_csv(&self) -> String {
+        let rate_hz = self.sample_rate_hz.unwrap_or(POWPROFILER_DEFAULT_RATE_HZ);
+        let all = |f: fn(&Sample) -> bool| !self.samples.is_empty() && self.samples.iter().all(f);
+        let with_cpu = all(|s| s.cpu_power_w.is_some());
+        let with_gpu = all(|s| s.gpu_power_w.is_some());
+        let with_energy = all(|s| s.duration_s.is_some());
+        let mut header: Vec<String> = (0..self.knobs.len())
+            .map(|i| (200 + i).to_string())
+            .collect();
+        header.push("100".into());
+        for (flag, on) in [("101", with_cpu), ("102", with_gpu), ("130", with_energy)] {
+            if on {
+                header.push(flag.into());
+            }
+        }
+        let mut out = header.join(",");
+        out.push('\n');
+        for s in &self.samples {
+            let mut row: Vec<String> = s.knobs.iter().map(|v| v.to_string()).collect();
+            row.push(s.power_w.to_string());
+            if with_cpu {
+                row.push(s.cpu_power_w.unwrap_or_default().to_string());
+            }
+            if with_gpu {
+                row.push(s.gpu_power_w.unwrap_or_default().to_string());
+            }
+            if with_energy {
+                let readings = (s.duration_s.unwrap_or_default() * rate_hz).round();
+                row.push((s.power_w * readings).to_string());
+            }
+            out.push_str(&row.join(","));
+            out.push('\n');
+        }
+        out
     }
 }
 
@@ -1221,5 +1293,75 @@ power_w = 4
                 }
             }
         }
+    }
+
+    #[test]
+    fn idle_power_reads_round_trips_and_is_checked() {
+        let text = GOOD.replace(
+            "knobs = [\"hazard",
+            "idle_power_w = 1.75\nidle_power_std_w = 0.05\nknobs = [\"hazard",
+        );
+        let p = Profile::from_toml_str(&text).unwrap();
+        assert_eq!(p.idle_power_w, Some(1.75));
+        assert_eq!(p.idle_power_std_w, Some(0.05));
+        assert_eq!(
+            Profile::from_toml_str(&p.to_toml_string().unwrap()).unwrap(),
+            p
+        );
+        expect_err(
+            &text.replace("idle_power_w = 1.75", "idle_power_w = 0"),
+            "idle_power_w",
+            "0",
+        );
+        expect_err(
+            &text.replace("idle_power_std_w = 0.05", "idle_power_std_w = -1.0"),
+            "idle_power_std_w",
+            "-1.0",
+        );
+        // Absent, it stays absent in the written text.
+        let plain = Profile::from_toml_str(GOOD).unwrap();
+        assert_eq!(plain.idle_power_w, None);
+        assert!(!plain.to_toml_string().unwrap().contains("idle"));
+    }
+
+    #[test]
+    fn channel_stats_of_values() {
+        // 2, 4, 4, 4, 5, 5, 7, 9: mean 5, squared deviations sum to 32, sample variance 32/7.
+        let s = ChannelStats::of(&[2.0, 4.0, 4.0, 4.0, 5.0, 5.0, 7.0, 9.0]).unwrap();
+        assert_eq!(s.mean_w, 5.0);
+        assert!((s.std_w - (32.0f64 / 7.0).sqrt()).abs() < 1e-12);
+        assert_eq!(ChannelStats::of(&[3.0]), None);
+        assert_eq!(ChannelStats::of(&[]), None);
+    }
+
+    #[test]
+    fn powprofiler_csv_written_reads_back() {
+        let mut p = Profile::from_toml_str(GOOD).unwrap();
+        p.samples[1].duration_s = Some(12.3);
+        p.samples[1].cpu_power_w = Some(1.25);
+        p.samples[1].gpu_power_w = Some(0.125);
+        p.sample_rate_hz = Some(20.0);
+        let text = p.to_powprofiler_csv();
+        assert_eq!(text.lines().next(), Some("200,201,100,101,102,130"));
+        // 130 = power × readings: 6.5 W × (100 s × 20 Hz).
+        assert_eq!(text.lines().nth(1), Some("4,10,6.5,2,1.5,13000"));
+        let names = ["hazard.rate_fps", "detection.rate_fps"];
+        let back = Profile::from_powprofiler_csv_with_rate(&text, &names, 20.0).unwrap();
+        assert_eq!(back.knobs, p.knobs);
+        for (a, b) in back.samples.iter().zip(&p.samples) {
+            assert_eq!(a.knobs, b.knobs);
+            assert_eq!(a.power_w, b.power_w);
+            assert_eq!(a.cpu_power_w, b.cpu_power_w);
+            assert_eq!(a.gpu_power_w, b.gpu_power_w);
+            assert!((a.duration_s.unwrap() - b.duration_s.unwrap()).abs() < 1e-9);
+        }
+        // A sample without CPU power or duration drops those columns for all.
+        p.samples[1].cpu_power_w = None;
+        p.samples[0].duration_s = None;
+        let text = p.to_powprofiler_csv();
+        assert_eq!(text.lines().next(), Some("200,201,100,102"));
+        let back = Profile::from_powprofiler_csv(&text, &names).unwrap();
+        assert_eq!(back.samples[1].power_w, 4.0);
+        assert_eq!(back.samples[1].cpu_power_w, None);
     }
 }

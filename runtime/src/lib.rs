@@ -14,6 +14,8 @@ pub mod inference;
 pub mod link;
 pub mod mission;
 pub mod plugins;
+pub mod power_meter;
+pub mod profile_sweep;
 pub mod registry;
 pub mod scheduler;
 pub mod task;
