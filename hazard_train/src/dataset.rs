@@ -148,7 +148,8 @@ pub struct CropConfig {
 
 impl CropConfig {
     pub fn validate(&self) -> Result<(), SetError> {
-        let fits = |side: usize, max: usize| side > 0 && side % STRIDE_PX == 0 && side <= max;
+        let fits =
+            |side: usize, max: usize| side > 0 && side.is_multiple_of(STRIDE_PX) && side <= max;
         if fits(self.width_px, INPUT_WIDTH_PX) && fits(self.height_px, INPUT_HEIGHT_PX) {
             Ok(())
         } else {

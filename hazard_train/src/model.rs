@@ -6,6 +6,9 @@ use algorithms::vision::render::SplitMix64;
 use candle_core::{DType, Device, Tensor, Var};
 use thiserror::Error;
 
+/// One layer's (weights, biases), flattened row-major.
+pub type LayerWeights = (Vec<f32>, Vec<f32>);
+
 /// Network input, pixels: the 640×480 camera frame letterboxed at scale ½.
 pub const INPUT_WIDTH_PX: usize = 320;
 pub const INPUT_HEIGHT_PX: usize = 240;
@@ -238,7 +241,7 @@ impl ConvLayer {
             return Ok((weight, bias));
         };
         let values =
-            |v: &Var| -> candle_core::Result<Vec<f64>> { Ok(v.to_dtype(DType::F64)?.to_vec1()?) };
+            |v: &Var| -> candle_core::Result<Vec<f64>> { v.to_dtype(DType::F64)?.to_vec1() };
         let (scale, shift) = (values(&norm.scale)?, values(&norm.shift)?);
         let (mean, var) = (values(&norm.running_mean)?, values(&norm.running_var)?);
         let per_channel = weight.len() / bias.len().max(1);
@@ -271,7 +274,7 @@ impl HazardNet {
     /// hidden layers, a small head whose objectness starts at [`OBJECTNESS_PRIOR`].
     pub fn new(config: NetConfig, seed: u64, device: &Device) -> Result<Self, ModelError> {
         config.validate()?;
-        let mut rng = SplitMix64::new(seed ^ 0x6e65_74);
+        let mut rng = SplitMix64::new(seed ^ 0x006e_6574);
         let head = config.layers.len() - 1;
         let mut layers = Vec::with_capacity(config.layers.len());
         for (index, &spec) in config.layers.iter().enumerate() {
@@ -343,8 +346,8 @@ impl HazardNet {
             && dims[1] == 1
             && dims[2] > 0
             && dims[3] > 0
-            && dims[2] % STRIDE_PX == 0
-            && dims[3] % STRIDE_PX == 0;
+            && dims[2].is_multiple_of(STRIDE_PX)
+            && dims[3].is_multiple_of(STRIDE_PX);
         if !fits {
             return Err(ModelError::InputShape(dims));
         }
@@ -384,7 +387,7 @@ impl HazardNet {
 
     /// The inference weights as plain numbers, batch normalisation folded in: (weight, bias) per
     /// convolution, row-major.
-    pub fn weights(&self) -> Result<Vec<(Vec<f32>, Vec<f32>)>, ModelError> {
+    pub fn weights(&self) -> Result<Vec<LayerWeights>, ModelError> {
         self.layers.iter().map(ConvLayer::folded).collect()
     }
 }

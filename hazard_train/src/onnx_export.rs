@@ -53,7 +53,7 @@ pub fn export(
     input_height_px: usize,
     info: &ExportInfo<'_>,
 ) -> Result<ModelProto, ExportError> {
-    let fits = |side: usize| side > 0 && side % STRIDE_PX == 0;
+    let fits = |side: usize| side > 0 && side.is_multiple_of(STRIDE_PX);
     if !(fits(input_width_px) && fits(input_height_px)) {
         return Err(ExportError::InputSize {
             width_px: input_width_px,

@@ -113,7 +113,7 @@ pub fn train(
             ..Default::default()
         },
     )?;
-    let mut rng = SplitMix64::new(config.seed ^ 0x7472_6169_6e);
+    let mut rng = SplitMix64::new(config.seed ^ 0x0074_7261_696e);
     let steps_per_epoch = samples.len().div_ceil(config.batch_size);
     let total_steps = steps_per_epoch * config.epochs;
     let mut order: Vec<usize> = (0..samples.len()).collect();

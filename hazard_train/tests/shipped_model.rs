@@ -67,7 +67,10 @@ fn the_shipped_model_finds_hazards_on_held_out_frames() {
     let overall = evaluation.all.overall();
     let labelled = overall.true_positives + overall.misses;
     assert!(labelled >= 100, "only {labelled} labels in 60 frames");
-    // MEASURED_FIGURES
+    // The full evaluation (300 held-out frames, models/hazard_yolo.json) measured precision
+    // 0.869 and recall 0.637 (boxes matched at IoU ≥ 0.5); 60 frames scatter around that.
+    const MIN_PRECISION: f64 = 0.8;
+    const MIN_RECALL: f64 = 0.55;
     assert!(
         overall.precision() >= MIN_PRECISION,
         "{overall:?}: precision {}",
