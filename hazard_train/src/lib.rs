@@ -2,7 +2,8 @@
 //! simulator renders, and exports it as ONNX with the YOLO decode inside the graph.
 //!
 //! - [`model`]: the network in candle and its decode;
-//! - [`conv`]: the convolution it trains with (im2col + matrix product, fast gradients);
+//! - [`conv`], [`norm`]: the convolution, and the batch normalisation with its activation, that
+//!   it trains with: custom operations with fast gradients;
 //! - [`target`]: labels → grid-cell targets, and the loss;
 //! - [`dataset`]: rendering the training set, random crops and flips;
 //! - [`train`]: the optimisation loop;
@@ -13,6 +14,7 @@ pub mod conv;
 pub mod dataset;
 pub mod evaluate;
 pub mod model;
+pub mod norm;
 pub mod onnx_export;
 pub mod target;
 pub mod train;

@@ -6,9 +6,6 @@ use algorithms::vision::render::SplitMix64;
 use candle_core::{DType, Device, Tensor, Var};
 use thiserror::Error;
 
-/// One layer's (weights, biases), flattened row-major.
-pub type LayerWeights = (Vec<f32>, Vec<f32>);
-
 /// Network input, pixels: the 640×480 camera frame letterboxed at scale ½.
 pub const INPUT_WIDTH_PX: usize = 320;
 pub const INPUT_HEIGHT_PX: usize = 240;
@@ -171,39 +168,60 @@ pub struct BatchNorm {
 }
 
 impl BatchNorm {
-    /// `xs` [C, batch, H, W].
-    fn forward(&self, xs: &Tensor, mode: Mode) -> candle_core::Result<Tensor> {
+    /// Inference: `xs` [C, batch, H, W] normalised with the running statistics.
+    fn infer(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
         let (channels, batch, height, width) = xs.dims4()?;
         let flat = xs.reshape((channels, batch * height * width))?;
-        let (mean, var) = match mode {
-            Mode::Train => {
-                let mean = flat.mean_keepdim(1)?;
-                let var = flat.broadcast_sub(&mean)?.sqr()?.mean_keepdim(1)?;
-                let m = BATCH_NORM_MOMENTUM;
-                let count = (batch * height * width) as f64;
-                let unbiased = (var.detach() * (count / (count - 1.0).max(1.0)))?;
-                let update = |running: &Var, batch_value: &Tensor| {
-                    let blended = ((running.as_tensor() * (1.0 - m))?
-                        + (batch_value.detach().flatten_all()? * m)?)?;
-                    running.set(&blended)
-                };
-                update(&self.running_mean, &mean)?;
-                update(&self.running_var, &unbiased)?;
-                (mean, var)
-            }
-            Mode::Infer => (
-                self.running_mean.as_tensor().reshape((channels, 1))?,
-                self.running_var.as_tensor().reshape((channels, 1))?,
-            ),
-        };
+        let column = |v: &Var| v.as_tensor().reshape((channels, 1));
         let normed = flat
-            .broadcast_sub(&mean)?
-            .broadcast_div(&(var + BATCH_NORM_EPS)?.sqrt()?)?;
+            .broadcast_sub(&column(&self.running_mean)?)?
+            .broadcast_div(&(column(&self.running_var)? + BATCH_NORM_EPS)?.sqrt()?)?;
         normed
-            .broadcast_mul(&self.scale.as_tensor().reshape((channels, 1))?)?
-            .broadcast_add(&self.shift.as_tensor().reshape((channels, 1))?)?
+            .broadcast_mul(&column(&self.scale)?)?
+            .broadcast_add(&column(&self.shift)?)?
             .reshape((channels, batch, height, width))
     }
+
+    /// Training, with the leaky ReLU that always follows: the batch's statistics, which also
+    /// move the running ones (unbiased variance: at inference the statistic is an estimate).
+    fn train_then_activate(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
+        let (ys, stats) = crate::norm::batch_norm_leaky_relu(
+            xs,
+            self.scale.as_tensor(),
+            self.shift.as_tensor(),
+            BATCH_NORM_EPS,
+            LEAKY_SLOPE,
+        )?;
+        let n = stats.count as f64;
+        let unbiased: Vec<f64> = stats
+            .var
+            .iter()
+            .map(|v| v * n / (n - 1.0).max(1.0))
+            .collect();
+        let m = BATCH_NORM_MOMENTUM;
+        for (running, batch_value) in [
+            (&self.running_mean, &stats.mean),
+            (&self.running_var, &unbiased),
+        ] {
+            let old: Vec<f32> = running.to_vec1()?;
+            let blended: Vec<f32> = old
+                .iter()
+                .zip(batch_value)
+                .map(|(&r, &b)| ((1.0 - m) * r as f64 + m * b) as f32)
+                .collect();
+            running.set(&Tensor::from_vec(blended, old.len(), running.device())?)?;
+        }
+        Ok(ys)
+    }
+}
+
+/// A convolution's numbers as the exported model holds them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConvWeights {
+    /// [out, in, kernel, kernel], row-major.
+    pub weight: Vec<f32>,
+    /// [out]
+    pub bias: Vec<f32>,
 }
 
 /// One trainable convolution, with its batch normalisation if any.
@@ -218,27 +236,40 @@ pub struct ConvLayer {
 }
 
 impl ConvLayer {
-    /// `xs` and the result are channel-major, [C, batch, H, W] (see [`crate::conv`]).
-    fn forward(&self, xs: &Tensor, mode: Mode) -> candle_core::Result<Tensor> {
+    /// `xs` and the result are channel-major, [C, batch, H, W] (see [`crate::conv`]); `activate`
+    /// applies the leaky ReLU after the (normalised) convolution.
+    fn forward(&self, xs: &Tensor, mode: Mode, activate: bool) -> candle_core::Result<Tensor> {
         let ys = crate::conv::conv2d_cbhw(
             xs,
             self.weight.as_tensor(),
             self.bias.as_tensor(),
             &self.spec,
         )?;
-        match &self.norm {
-            Some(norm) => norm.forward(&ys, mode),
-            None => Ok(ys),
+        match (&self.norm, mode, activate) {
+            (Some(norm), Mode::Train, true) => norm.train_then_activate(&ys),
+            (Some(_), Mode::Train, false) => {
+                candle_core::bail!("batch normalisation is only trained before an activation")
+            }
+            (Some(norm), Mode::Infer, _) => {
+                let ys = norm.infer(&ys)?;
+                if activate {
+                    leaky_relu(&ys)
+                } else {
+                    Ok(ys)
+                }
+            }
+            (None, _, true) => leaky_relu(&ys),
+            (None, _, false) => Ok(ys),
         }
     }
 
     /// The plain convolution the layer computes at inference: batch normalisation folded into
     /// the weights and bias, w′ = w·s/√(v + ε), b′ = (b − μ)·s/√(v + ε) + β per output channel.
-    fn folded(&self) -> Result<(Vec<f32>, Vec<f32>), ModelError> {
+    fn folded(&self) -> Result<ConvWeights, ModelError> {
         let weight: Vec<f32> = self.weight.flatten_all()?.to_vec1()?;
         let bias: Vec<f32> = self.bias.to_vec1()?;
         let Some(norm) = &self.norm else {
-            return Ok((weight, bias));
+            return Ok(ConvWeights { weight, bias });
         };
         let values =
             |v: &Var| -> candle_core::Result<Vec<f64>> { v.to_dtype(DType::F64)?.to_vec1() };
@@ -258,7 +289,7 @@ impl ConvLayer {
         let bias = (0..bias.len())
             .map(|o| ((bias[o] as f64 - mean[o]) * factor[o] + shift[o]) as f32)
             .collect();
-        Ok((weight, bias))
+        Ok(ConvWeights { weight, bias })
     }
 }
 
@@ -355,10 +386,7 @@ impl HazardNet {
         let mut xs = images.reshape((1, dims[0], dims[2], dims[3]))?;
         let head = self.layers.len() - 1;
         for (index, layer) in self.layers.iter().enumerate() {
-            xs = layer.forward(&xs, mode)?;
-            if index != head {
-                xs = leaky_relu(&xs)?;
-            }
+            xs = layer.forward(&xs, mode, index != head)?;
         }
         Ok(xs.transpose(0, 1)?.contiguous()?)
     }
@@ -385,9 +413,9 @@ impl HazardNet {
         self.decode(&self.raw(images, mode)?)
     }
 
-    /// The inference weights as plain numbers, batch normalisation folded in: (weight, bias) per
+    /// The inference weights as plain numbers, batch normalisation folded in, one entry per
     /// convolution, row-major.
-    pub fn weights(&self) -> Result<Vec<LayerWeights>, ModelError> {
+    pub fn weights(&self) -> Result<Vec<ConvWeights>, ModelError> {
         self.layers.iter().map(ConvLayer::folded).collect()
     }
 }

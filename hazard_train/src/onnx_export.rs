@@ -14,7 +14,8 @@ use tract_onnx::pb::{
 };
 
 use crate::model::{
-    grid_offsets_px, HazardNet, ModelError, ATTRIBUTES, CLASSES, LEAKY_SLOPE, STRIDE_PX,
+    grid_offsets_px, ConvWeights, HazardNet, ModelError, ATTRIBUTES, CLASSES, LEAKY_SLOPE,
+    STRIDE_PX,
 };
 
 /// The graph's input and output names: the hazard task's contract.
@@ -68,7 +69,8 @@ pub fn export(
 
     let mut current = INPUT_NAME.to_string();
     let head = net.layers.len() - 1;
-    for (index, ((weight, bias), layer)) in net.weights()?.into_iter().zip(&net.layers).enumerate()
+    for (index, (ConvWeights { weight, bias }, layer)) in
+        net.weights()?.into_iter().zip(&net.layers).enumerate()
     {
         let s = layer.spec;
         let (w_name, b_name) = (format!("conv{index}.weight"), format!("conv{index}.bias"));

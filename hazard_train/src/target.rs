@@ -1,9 +1,13 @@
 //! What the network should output: each labelled box is given to the grid cell that holds its
-//! centre, and the loss compares the head's raw output with those cells.
+//! centre and, as YOLOv5 does, to the neighbouring cells its centre lies nearest to across and
+//! down; the loss compares the head's raw output with those cells.
 //!
-//! Per positive cell the targets are the centre's offset inside the cell (cell units, what
-//! `2 · sigmoid(t) − 0.5` decodes) and the box's size as `ln(size / anchor)` (what `exp(t)`
-//! decodes), so the regression works in the same terms as the decode.
+//! Per positive cell the targets are the centre's offset from the cell's corner (cell units, what
+//! `2 · sigmoid(t) − 0.5` decodes: within (−0.5, 1.5), so a neighbour can reach the centre) and
+//! the box's size as `ln(size / anchor)` (what `exp(t)` decodes), so the regression works in the
+//! same terms as the decode. Three cells per hazard instead of one triple the positives the
+//! objectness learns from, and a centre near a cell border no longer makes the neighbour across
+//! it a negative.
 
 use algorithms::vision::yolo::PixelBox;
 use candle_core::{Device, Tensor};
@@ -36,7 +40,8 @@ pub struct InputBox {
 pub struct CellTarget {
     pub row: usize,
     pub column: usize,
-    /// Centre inside the cell, cell units in [0, 1).
+    /// Centre from the cell's top-left corner, cell units: [0, 1) in the centre's own cell,
+    /// within (−0.5, 1.5) in a neighbour.
     pub offset_x: f64,
     pub offset_y: f64,
     /// ln(width / anchor), ln(height / anchor).
@@ -48,9 +53,11 @@ pub struct CellTarget {
 /// Boxes narrower than this (input pixels) are not learnt: their log-size would be a wild target.
 const MIN_BOX_SIDE_PX: f64 = 1.0;
 
-/// The positive cells of one image on a `rows × columns` grid. A box whose centre is off the grid
-/// is left out; when two centres share a cell the larger box keeps it (the smaller one is rare:
-/// hazards never overlap on the ground).
+/// The positive cells of one image on a `rows × columns` grid: for each box the cell of its
+/// centre, the column neighbour on the side the centre leans to (left when its offset is under ½,
+/// right when over ½, none at exactly ½) and likewise the row neighbour. A box whose centre is off
+/// the grid is left out. When two boxes claim a cell, a centre cell beats a neighbour, then the
+/// larger box wins (both are rare: hazards never overlap on the ground).
 pub fn assign(
     boxes: &[InputBox],
     rows: usize,
@@ -58,7 +65,8 @@ pub fn assign(
     anchor_px: f64,
 ) -> Result<Vec<CellTarget>, TargetError> {
     let stride = STRIDE_PX as f64;
-    let mut cells: Vec<(f64, CellTarget)> = Vec::with_capacity(boxes.len());
+    // Each claimed cell with its rank (centre cell first, then area).
+    let mut cells: Vec<((bool, f64), CellTarget)> = Vec::with_capacity(3 * boxes.len());
     for b in boxes {
         if b.class_id >= CLASSES {
             return Err(TargetError::Class {
@@ -74,24 +82,48 @@ pub fn assign(
         if !(gx >= 0.0 && gy >= 0.0 && gx < columns as f64 && gy < rows as f64) {
             continue;
         }
-        let (column, row) = (gx.floor() as usize, gy.floor() as usize);
-        let target = CellTarget {
-            row,
-            column,
-            offset_x: gx - column as f64,
-            offset_y: gy - row as f64,
-            log_width: (width / anchor_px).ln(),
-            log_height: (height / anchor_px).ln(),
-            class_id: b.class_id,
+        let (column, row) = (gx.floor() as isize, gy.floor() as isize);
+        let (fx, fy) = (gx - column as f64, gy - row as f64);
+        let lean = |f: f64| {
+            if f < 0.5 {
+                Some(-1)
+            } else if f > 0.5 {
+                Some(1)
+            } else {
+                None
+            }
         };
+        let mut claims = vec![(true, 0, 0)];
+        if let Some(dx) = lean(fx) {
+            claims.push((false, dx, 0));
+        }
+        if let Some(dy) = lean(fy) {
+            claims.push((false, 0, dy));
+        }
         let area = width * height;
-        match cells
-            .iter_mut()
-            .find(|(_, t)| t.row == row && t.column == column)
-        {
-            Some(slot) if slot.0 < area => *slot = (area, target),
-            Some(_) => {}
-            None => cells.push((area, target)),
+        for (is_centre, dx, dy) in claims {
+            let (c, r) = (column + dx, row + dy);
+            if c < 0 || r < 0 || c >= columns as isize || r >= rows as isize {
+                continue;
+            }
+            let target = CellTarget {
+                row: r as usize,
+                column: c as usize,
+                offset_x: fx - dx as f64,
+                offset_y: fy - dy as f64,
+                log_width: (width / anchor_px).ln(),
+                log_height: (height / anchor_px).ln(),
+                class_id: b.class_id,
+            };
+            let rank = (is_centre, area);
+            match cells
+                .iter_mut()
+                .find(|(_, t)| t.row == target.row && t.column == target.column)
+            {
+                Some(slot) if slot.0 < rank => *slot = (rank, target),
+                Some(_) => {}
+                None => cells.push((rank, target)),
+            }
         }
     }
     Ok(cells.into_iter().map(|(_, t)| t).collect())
@@ -269,26 +301,47 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_box_goes_to_the_cell_of_its_centre_with_its_offsets_and_log_size() {
-        // Centre (56, 28): column ⌊56/16⌋ = 3, row ⌊28/16⌋ = 1, offsets 0.5 and 0.75; 32 × 16 px
-        // against a 32 px anchor: ln 1 = 0 and ln ½.
-        let cells = assign(&[input_box(1, 40.0, 20.0, 72.0, 36.0)], 4, 6, 32.0).unwrap();
-        assert_eq!(cells.len(), 1);
-        let t = cells[0];
-        assert_eq!((t.row, t.column, t.class_id), (1, 3, 1));
-        assert!((t.offset_x - 0.5).abs() < 1e-12);
-        assert!((t.offset_y - 0.75).abs() < 1e-12);
-        assert!(t.log_width.abs() < 1e-12);
-        assert!((t.log_height - 0.5f64.ln()).abs() < 1e-12);
+    /// (row, column, offset x, offset y) of each cell, sorted.
+    fn placed(cells: &[CellTarget]) -> Vec<(usize, usize, f64, f64)> {
+        let mut v: Vec<_> = cells
+            .iter()
+            .map(|t| (t.row, t.column, t.offset_x, t.offset_y))
+            .collect();
+        v.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        v
     }
 
     #[test]
-    fn a_centre_on_a_cell_border_belongs_to_the_next_cell_and_off_grid_centres_are_left_out() {
-        // Centre (64, 16): exactly the left/top border of cell (1, 4), offsets 0.
+    fn a_box_goes_to_its_centre_cell_and_the_neighbours_its_centre_leans_to() {
+        // Centre (56, 28) = (3.5, 1.75) cells: cell (row 1, column 3), offsets 0.5 and 0.75. At
+        // exactly ½ across there is no column neighbour; 0.75 down leans to row 2, where the
+        // centre is −0.25 of a cell from its top. 32 × 16 px against a 32 px anchor: ln 1 and
+        // ln ½.
+        let cells = assign(&[input_box(1, 40.0, 20.0, 72.0, 36.0)], 4, 6, 32.0).unwrap();
+        assert_eq!(placed(&cells), vec![(1, 3, 0.5, 0.75), (2, 3, 0.5, -0.25)]);
+        for t in &cells {
+            assert_eq!(t.class_id, 1);
+            assert!(t.log_width.abs() < 1e-12);
+            assert!((t.log_height - 0.5f64.ln()).abs() < 1e-12);
+        }
+        // Centre (20, 40) = (1.25, 2.5): cell (2, 1) and the column to its left, where the
+        // centre is 1.25 cells from the corner.
+        let cells = assign(&[input_box(0, 10.0, 30.0, 30.0, 50.0)], 4, 6, 32.0).unwrap();
+        assert_eq!(placed(&cells), vec![(2, 0, 1.25, 0.5), (2, 1, 0.25, 0.5)]);
+    }
+
+    #[test]
+    fn border_centres_belong_to_the_next_cell_and_off_grid_cells_are_left_out() {
+        // Centre (64, 16): exactly the top-left corner of cell (1, 4), offsets 0; it leans left
+        // and up, to cells (1, 3) and (0, 4), where it sits 1 cell from their corners.
         let cells = assign(&[input_box(0, 60.0, 12.0, 68.0, 20.0)], 4, 6, 32.0).unwrap();
-        assert_eq!((cells[0].row, cells[0].column), (1, 4));
-        assert_eq!((cells[0].offset_x, cells[0].offset_y), (0.0, 0.0));
+        assert_eq!(
+            placed(&cells),
+            vec![(0, 4, 0.0, 1.0), (1, 3, 1.0, 0.0), (1, 4, 0.0, 0.0)]
+        );
+        // Centre (4, 40): leans left off the grid; only its own cell.
+        let cells = assign(&[input_box(0, 0.0, 36.0, 8.0, 44.0)], 4, 6, 32.0).unwrap();
+        assert_eq!(placed(&cells), vec![(2, 0, 0.25, 0.5)]);
         // Centre x = 96 = 6 cells: one past the last column.
         let off = input_box(0, 90.0, 0.0, 102.0, 10.0);
         // Centre y = -1: above the grid.
@@ -299,13 +352,23 @@ mod tests {
     }
 
     #[test]
-    fn two_centres_in_one_cell_keep_the_larger_box() {
+    fn a_shared_cell_goes_to_a_centre_before_a_neighbour_then_to_the_larger_box() {
+        // Both centres in cell (0, 0), leaning off the grid: the larger box keeps the cell.
         let small = input_box(0, 2.0, 2.0, 10.0, 10.0);
         let large = input_box(2, 0.0, 0.0, 14.0, 14.0);
         for order in [[small, large], [large, small]] {
             let cells = assign(&order, 2, 2, 32.0).unwrap();
             assert_eq!(cells.len(), 1);
             assert_eq!(cells[0].class_id, 2);
+        }
+        // A vehicle centred at (20, 8) = (1.25, 0.5) leans into cell (0, 0), where a small
+        // person has its centre: the person keeps it, the vehicle has its own cell.
+        let vehicle = input_box(2, 0.0, 0.0, 40.0, 16.0);
+        for order in [[small, vehicle], [vehicle, small]] {
+            let cells = assign(&order, 2, 2, 32.0).unwrap();
+            let mut owners: Vec<_> = cells.iter().map(|t| (t.column, t.class_id)).collect();
+            owners.sort();
+            assert_eq!(owners, vec![(0, 0), (1, 2)]);
         }
         assert!(matches!(
             assign(&[input_box(3, 0.0, 0.0, 8.0, 8.0)], 2, 2, 32.0),

@@ -67,10 +67,11 @@ fn the_shipped_model_finds_hazards_on_held_out_frames() {
     let overall = evaluation.all.overall();
     let labelled = overall.true_positives + overall.misses;
     assert!(labelled >= 100, "only {labelled} labels in 60 frames");
-    // The full evaluation (300 held-out frames, models/hazard_yolo.json) measured precision
-    // 0.869 and recall 0.637 (boxes matched at IoU ≥ 0.5); 60 frames scatter around that.
-    const MIN_PRECISION: f64 = 0.8;
-    const MIN_RECALL: f64 = 0.55;
+    // Measured with the shipped model (`models/hazard_yolo.json`): on all 500 held-out frames
+    // precision 0.956 and recall 0.966; on these first 60 (139 labels) precision 0.935 (129 TP,
+    // 9 FP) and recall 0.928 (10 missed). The bounds leave a few detections of slack.
+    const MIN_PRECISION: f64 = 0.88;
+    const MIN_RECALL: f64 = 0.88;
     assert!(
         overall.precision() >= MIN_PRECISION,
         "{overall:?}: precision {}",
