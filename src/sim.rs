@@ -325,29 +325,22 @@ fn evaluate(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> 
             }
         }
     }
-    let jobs: Vec<(usize, SimOptions)> = cells
-        .iter()
-        .enumerate()
-        .flat_map(|(cell, &(rate, wind_m_s, path))| {
-            (0..args.runs as u64).map(move |run| {
-                let options = SimOptions {
-                    path,
-                    wind_speed_m_s: wind_m_s,
-                    tracking_s: Some(args.tracking_s.unwrap_or(EVALUATION_TRACKING_S)),
-                    fixed_levels: vec![(detection.name.clone(), rate)],
-                    record_track: false,
-                    ..args.options(args.seed + run)
-                };
-                (cell, options)
-            })
-        })
-        .collect();
-    let results = match fly_all(model, registry, jobs, cells.len()) {
-        Ok(results) => results,
-        Err(error) => {
-            eprintln!("error: {error}");
-            return ExitCode::FAILURE;
-        }
+    let results = fly_cells(
+        model,
+        registry,
+        &cells,
+        args,
+        |&(rate, wind_m_s, path), seed| SimOptions {
+            path,
+            wind_speed_m_s: wind_m_s,
+            tracking_s: Some(args.tracking_s.unwrap_or(EVALUATION_TRACKING_S)),
+            fixed_levels: vec![(detection.name.clone(), rate)],
+            record_track: false,
+            ..args.options(seed)
+        },
+    );
+    let Ok(results) = results else {
+        return ExitCode::FAILURE;
     };
     let rows: Vec<(f64, f64, PathKind, SimSummary)> = cells
         .iter()
@@ -374,6 +367,25 @@ fn evaluate(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> 
         print!("{}", evaluation_table(&rows, args));
     }
     ExitCode::SUCCESS
+}
+
+/// Flies `args.runs` seeds (from `args.seed`) of every cell, with the options `options_of(cell,
+/// seed)`; the outcomes grouped by cell. A mission that cannot be flown is reported, and ends
+/// the evaluation.
+fn fly_cells<C>(
+    model: &MissionModel,
+    registry: &PluginRegistry,
+    cells: &[C],
+    args: &SimArgs,
+    options_of: impl Fn(&C, u64) -> SimOptions,
+) -> Result<Vec<Vec<SimOutcome>>, ()> {
+    let mut jobs = Vec::with_capacity(cells.len() * args.runs);
+    for (index, cell) in cells.iter().enumerate() {
+        for run in 0..args.runs as u64 {
+            jobs.push((index, options_of(cell, args.seed + run)));
+        }
+    }
+    fly_all(model, registry, jobs, cells.len()).map_err(|error| eprintln!("error: {error}"))
 }
 
 /// Flies every job on all cores with a progress bar; the outcomes grouped by the job's cell.
@@ -434,30 +446,19 @@ fn evaluate_hazards(model: &MissionModel, registry: &PluginRegistry, args: &SimA
             cells.push((rate, wind_m_s));
         }
     }
-    let jobs: Vec<(usize, SimOptions)> = cells
-        .iter()
-        .enumerate()
-        .flat_map(|(cell, &(rate, wind_m_s))| {
-            (0..args.runs as u64).map(move |run| {
-                let mut fixed_levels = args.fixed_levels.clone();
-                fixed_levels.push((hazard.name.clone(), rate));
-                let options = SimOptions {
-                    wind_speed_m_s: wind_m_s,
-                    tracking_s: Some(args.tracking_s.unwrap_or(HAZARD_EVALUATION_TRACKING_S)),
-                    fixed_levels,
-                    record_track: false,
-                    ..args.options(args.seed + run)
-                };
-                (cell, options)
-            })
-        })
-        .collect();
-    let results = match fly_all(model, registry, jobs, cells.len()) {
-        Ok(results) => results,
-        Err(error) => {
-            eprintln!("error: {error}");
-            return ExitCode::FAILURE;
+    let results = fly_cells(model, registry, &cells, args, |&(rate, wind_m_s), seed| {
+        let mut fixed_levels = args.fixed_levels.clone();
+        fixed_levels.push((hazard.name.clone(), rate));
+        SimOptions {
+            wind_speed_m_s: wind_m_s,
+            tracking_s: Some(args.tracking_s.unwrap_or(HAZARD_EVALUATION_TRACKING_S)),
+            fixed_levels,
+            record_track: false,
+            ..args.options(seed)
         }
+    });
+    let Ok(results) = results else {
+        return ExitCode::FAILURE;
     };
     let rows: Vec<HazardRow> = cells
         .iter()

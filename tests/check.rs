@@ -1,25 +1,16 @@
 //! End-to-end tests of `qosrt check`: the reference mission, and bad configs that must each exit 2
 //! with `FILE:LINE:COL: error: MESSAGE` pointing at the offending text.
 
+mod common;
+use common::{qosrt, repo_root};
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 const EXIT_INVALID_CONFIG: i32 = 2;
 
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
 fn reference_text() -> String {
     std::fs::read_to_string(repo_root().join("qos.toml")).expect("the reference qos.toml exists")
-}
-
-fn qosrt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .args(args)
-        .current_dir(repo_root())
-        .output()
-        .expect("the qosrt binary runs")
 }
 
 /// The reference config with its profile paths made absolute, so it can live in a temp folder.

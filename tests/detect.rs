@@ -1,19 +1,13 @@
 //! End-to-end tests of `qosrt detect` on rendered frames written as image files.
 
+mod common;
+use common::qosrt;
+
 use algorithms::vision::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::landing_marker::LandingMarkerLayout;
 use algorithms::vision::render::{render, true_pixel, RenderOptions, Scene, Texture};
 use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn qosrt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("the qosrt binary runs")
-}
 
 /// Renders the reference pad 3 m below a slightly tilted camera into `path`; returns the true
 /// pixel of the pad's centre.

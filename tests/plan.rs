@@ -1,20 +1,10 @@
 //! End-to-end tests of `qosrt plan` and `qosrt model` on the reference mission and the shipped
 //! Jetson Nano profiles.
 
+mod common;
+use common::{qosrt, repo_root};
+
 use std::path::PathBuf;
-use std::process::{Command, Output};
-
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn qosrt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .args(args)
-        .current_dir(repo_root())
-        .output()
-        .expect("the qosrt binary runs")
-}
 
 fn plan_json(extra: &[&str]) -> (Option<i32>, serde_json::Value) {
     let mut args = vec!["plan", "qos.toml", "--json"];

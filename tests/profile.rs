@@ -2,29 +2,11 @@
 //! sysfs tree whose profile `qosrt plan` then uses, an external meter's log, and `--from-csv`
 //! on the seed's raw traces.
 
+mod common;
+use common::{output_text as text, qosrt, repo_root};
+
 use power_models::profile::Profile;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn repo_root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn qosrt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .args(args)
-        .current_dir(repo_root())
-        .output()
-        .expect("the qosrt binary runs")
-}
-
-fn text(output: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&output.stdout),
-        String::from_utf8_lossy(&output.stderr)
-    )
-}
 
 fn write(root: &Path, rel: &str, text: &str) {
     let path = root.join(rel);

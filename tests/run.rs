@@ -1,16 +1,10 @@
 //! End-to-end tests of `qosrt run --dry-run`: the real registry, scheduler and governor on
 //! synthetic frames and battery telemetry.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+mod common;
+use common::qosrt;
 
-fn qosrt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("the qosrt binary runs")
-}
+use std::path::PathBuf;
 
 /// A landing-only mission whose one task is the built-in landing-marker detector.
 fn detection_mission(dir: &tempfile::TempDir) -> PathBuf {

@@ -1,15 +1,8 @@
 //! End-to-end tests of `qosrt sim`: the binary flies the reference mission (tracking shortened)
 //! and refuses bad arguments with a clear message.
 
-use std::process::{Command, Output};
-
-fn qosrt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("the qosrt binary runs")
-}
+mod common;
+use common::qosrt;
 
 #[test]
 fn the_reference_mission_lands_and_reports_as_json_and_svg() {

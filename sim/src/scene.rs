@@ -241,48 +241,66 @@ impl HazardField {
                 value: *bad,
             });
         }
-        let mut rng = SplitMix64::new(seed ^ 0x6861_7a61_7264);
-        let mut hazards: Vec<Hazard> = Vec::new();
-        // Largest first: big objects are the hardest to fit once the field fills up.
-        for class in HazardClass::ALL.into_iter().rev() {
-            let wanted = config.count_per_class[class as usize];
-            let radius_m = class.bounding_radius_m();
-            for placed in 0..wanted {
-                let mut spot = None;
-                for _ in 0..2000 {
-                    let north_m = n0 + (n1 - n0) * rng.next_f64();
-                    let east_m = e0 + (e1 - e0) * rng.next_f64();
-                    let clear_of_others = hazards.iter().all(|h| {
-                        let gap = (h.north_m - north_m).hypot(h.east_m - east_m);
-                        gap >= radius_m + h.class.bounding_radius_m() + config.min_gap_m
-                    });
-                    let clear_of_path =
-                        distance_to_path_m(&config.keep_out_path_ne_m, north_m, east_m)
-                            >= radius_m + config.keep_out_radius_m;
-                    if clear_of_others && clear_of_path {
-                        spot = Some((north_m, east_m));
-                        break;
-                    }
-                }
-                let Some((north_m, east_m)) = spot else {
-                    return Err(SceneError::Crowded {
-                        class,
-                        placed_of: placed,
-                        wanted,
-                    });
-                };
-                let yaw_rad = (2.0 * rng.next_f64() - 1.0) * PI;
-                hazards.push(Hazard {
-                    class,
-                    north_m,
-                    east_m,
-                    yaw_rad,
-                    id: hazards.len() as u32,
-                });
-            }
-        }
+        let rng = SplitMix64::new(seed ^ 0x6861_7a61_7264);
+        let hazards = place_clear(
+            config.count_per_class,
+            config.min_gap_m,
+            rng,
+            |class, rng| {
+                let north_m = n0 + (n1 - n0) * rng.next_f64();
+                let east_m = e0 + (e1 - e0) * rng.next_f64();
+                let clear_of_path = distance_to_path_m(&config.keep_out_path_ne_m, north_m, east_m)
+                    >= class.bounding_radius_m() + config.keep_out_radius_m;
+                clear_of_path.then_some((north_m, east_m, None))
+            },
+        )?;
         Ok(Self { hazards })
     }
+}
+
+/// Places `count_per_class` hazards, the largest class first (big objects are the hardest to
+/// fit once the field fills up). Each takes the first of up to 2000 spots drawn by
+/// `candidate` (north, east and a fixed yaw, or `None` for a spot it rejects) that keeps
+/// `min_gap_m` between its bounding circle and every hazard placed before; a spot without a
+/// fixed yaw faces anywhere.
+fn place_clear(
+    count_per_class: [usize; 3],
+    min_gap_m: f64,
+    mut rng: SplitMix64,
+    mut candidate: impl FnMut(HazardClass, &mut SplitMix64) -> Option<(f64, f64, Option<f64>)>,
+) -> Result<Vec<Hazard>, SceneError> {
+    let mut hazards: Vec<Hazard> = Vec::new();
+    for class in HazardClass::ALL.into_iter().rev() {
+        let wanted = count_per_class[class as usize];
+        let radius_m = class.bounding_radius_m();
+        for placed in 0..wanted {
+            let clear_of_others = |north_m: f64, east_m: f64| {
+                hazards.iter().all(|h| {
+                    let gap = (h.north_m - north_m).hypot(h.east_m - east_m);
+                    gap >= radius_m + h.class.bounding_radius_m() + min_gap_m
+                })
+            };
+            let spot = (0..2000)
+                .filter_map(|_| candidate(class, &mut rng))
+                .find(|&(north_m, east_m, _)| clear_of_others(north_m, east_m));
+            let Some((north_m, east_m, fixed_yaw_rad)) = spot else {
+                return Err(SceneError::Crowded {
+                    class,
+                    placed_of: placed,
+                    wanted,
+                });
+            };
+            let yaw_rad = fixed_yaw_rad.unwrap_or_else(|| (2.0 * rng.next_f64() - 1.0) * PI);
+            hazards.push(Hazard {
+                class,
+                north_m,
+                east_m,
+                yaw_rad,
+                id: hazards.len() as u32,
+            });
+        }
+    }
+    Ok(hazards)
 }
 
 /// Hazards along the tractor's track, where a drone following it can see them: the seed's
@@ -355,71 +373,45 @@ impl HazardField {
             arc_m.push(arc_m.last().copied().unwrap_or(0.0) + step);
         }
         let length_m = arc_m.last().copied().unwrap_or(0.0);
-        let mut rng = SplitMix64::new(seed ^ 0x0074_7261_636b);
-        let mut hazards: Vec<Hazard> = Vec::new();
-        for class in HazardClass::ALL.into_iter().rev() {
-            let wanted = config.count_per_class[class as usize];
-            let radius_m = class.bounding_radius_m();
-            // Across the track: a parked vehicle shows its width, the others their widest side.
-            let half_across_m = match class {
-                HazardClass::Vehicle => 0.5 * class.size_m().1,
-                _ => radius_m,
-            };
-            let clearance_m = TRACTOR_HALF_WIDTH_M + half_across_m;
-            let lateral_from_m = lateral_min_m.max(clearance_m);
-            let lateral_to_m = lateral_max_m.max(lateral_from_m);
-            for placed in 0..wanted {
-                let mut spot = None;
-                for _ in 0..2000 {
-                    if length_m <= config.skip_start_m {
-                        break;
-                    }
-                    let s = config.skip_start_m + (length_m - config.skip_start_m) * rng.next_f64();
-                    let segment = arc_m.partition_point(|&a| a <= s).clamp(1, arc_m.len() - 1);
-                    let (a, b) = (track_ne_m[segment - 1], track_ne_m[segment]);
-                    let span = arc_m[segment] - arc_m[segment - 1];
-                    if span <= 0.0 {
-                        continue;
-                    }
-                    let t = (s - arc_m[segment - 1]) / span;
-                    let heading = (b[1] - a[1]).atan2(b[0] - a[0]);
-                    let side = if rng.next_f64() < 0.5 { -1.0 } else { 1.0 };
-                    let lateral =
-                        side * (lateral_from_m + (lateral_to_m - lateral_from_m) * rng.next_f64());
-                    // Left of the heading is (sin, −cos) in (north, east).
-                    let north_m = a[0] + t * (b[0] - a[0]) - lateral * heading.sin();
-                    let east_m = a[1] + t * (b[1] - a[1]) + lateral * heading.cos();
-                    let clear_of_others = hazards.iter().all(|h| {
-                        let gap = (h.north_m - north_m).hypot(h.east_m - east_m);
-                        gap >= radius_m + h.class.bounding_radius_m() + config.min_gap_m
-                    });
-                    let clear_of_track =
-                        distance_to_path_m(track_ne_m, north_m, east_m) >= clearance_m - 1e-9;
-                    if clear_of_others && clear_of_track {
-                        let yaw_rad = match class {
-                            HazardClass::Vehicle => heading,
-                            _ => (2.0 * rng.next_f64() - 1.0) * PI,
-                        };
-                        spot = Some((north_m, east_m, yaw_rad));
-                        break;
-                    }
+        let rng = SplitMix64::new(seed ^ 0x0074_7261_636b);
+        let hazards = place_clear(
+            config.count_per_class,
+            config.min_gap_m,
+            rng,
+            |class, rng| {
+                if length_m <= config.skip_start_m {
+                    return None;
                 }
-                let Some((north_m, east_m, yaw_rad)) = spot else {
-                    return Err(SceneError::Crowded {
-                        class,
-                        placed_of: placed,
-                        wanted,
-                    });
+                // Across the track: a parked vehicle shows its width, the others their widest
+                // side.
+                let half_across_m = match class {
+                    HazardClass::Vehicle => 0.5 * class.size_m().1,
+                    _ => class.bounding_radius_m(),
                 };
-                hazards.push(Hazard {
-                    class,
-                    north_m,
-                    east_m,
-                    yaw_rad,
-                    id: hazards.len() as u32,
-                });
-            }
-        }
+                let clearance_m = TRACTOR_HALF_WIDTH_M + half_across_m;
+                let lateral_from_m = lateral_min_m.max(clearance_m);
+                let lateral_to_m = lateral_max_m.max(lateral_from_m);
+                let s = config.skip_start_m + (length_m - config.skip_start_m) * rng.next_f64();
+                let segment = arc_m.partition_point(|&a| a <= s).clamp(1, arc_m.len() - 1);
+                let (a, b) = (track_ne_m[segment - 1], track_ne_m[segment]);
+                let span = arc_m[segment] - arc_m[segment - 1];
+                if span <= 0.0 {
+                    return None;
+                }
+                let t = (s - arc_m[segment - 1]) / span;
+                let heading = (b[1] - a[1]).atan2(b[0] - a[0]);
+                let side = if rng.next_f64() < 0.5 { -1.0 } else { 1.0 };
+                let lateral =
+                    side * (lateral_from_m + (lateral_to_m - lateral_from_m) * rng.next_f64());
+                // Left of the heading is (sin, −cos) in (north, east).
+                let north_m = a[0] + t * (b[0] - a[0]) - lateral * heading.sin();
+                let east_m = a[1] + t * (b[1] - a[1]) + lateral * heading.cos();
+                let clear_of_track =
+                    distance_to_path_m(track_ne_m, north_m, east_m) >= clearance_m - 1e-9;
+                let fixed_yaw_rad = (class == HazardClass::Vehicle).then_some(heading);
+                clear_of_track.then_some((north_m, east_m, fixed_yaw_rad))
+            },
+        )?;
         Ok(Self { hazards })
     }
 }

@@ -467,18 +467,35 @@ mod tests {
         )
     }
 
+    /// What the scheduler gives the task: a bus, the mission's health and its 1 fps level.
+    struct Harness {
+        bus: Bus,
+        health: MissionHealth,
+        level: QosLevel,
+    }
+
+    impl Harness {
+        fn new() -> Self {
+            Harness {
+                bus: Bus::new(),
+                health: MissionHealth::new(vec!["hazard".into()]),
+                level: QosLevel {
+                    index: 0,
+                    knob: Knob::RateFps,
+                    value: 1.0,
+                    period_ms: 1000.0,
+                },
+            }
+        }
+
+        fn context(&self, now: Timestamp) -> TaskContext<'_> {
+            TaskContext::new("hazard", now, &self.level, &self.bus, &self.health, 1)
+        }
+    }
+
     /// Runs `start` on a fresh bus, as the scheduler would.
     fn start(task: &mut HazardCnnTask) -> Result<(), TaskError> {
-        let bus = Bus::new();
-        let health = MissionHealth::new(vec!["hazard".into()]);
-        let level = QosLevel {
-            index: 0,
-            knob: Knob::RateFps,
-            value: 1.0,
-            period_ms: 1000.0,
-        };
-        let mut ctx = TaskContext::new("hazard", Timestamp::ZERO, &level, &bus, &health, 1);
-        task.start(&mut ctx)
+        task.start(&mut Harness::new().context(Timestamp::ZERO))
     }
 
     fn shipped_model_path() -> String {
@@ -627,18 +644,11 @@ mod tests {
 
     #[test]
     fn frames_outside_the_task_phases_or_below_its_height_are_not_looked_at() {
-        let bus = Bus::new();
-        let health = MissionHealth::new(vec!["hazard".into()]);
-        let level = QosLevel {
-            index: 0,
-            knob: Knob::RateFps,
-            value: 1.0,
-            period_ms: 1000.0,
-        };
+        let harness = Harness::new();
+        let bus = &harness.bus;
         let mut hazard = task("").unwrap();
         hazard.phases = vec!["tracking".into()];
-        let mut ctx = TaskContext::new("hazard", Timestamp::ZERO, &level, &bus, &health, 1);
-        hazard.start(&mut ctx).unwrap();
+        hazard.start(&mut harness.context(Timestamp::ZERO)).unwrap();
         let frames = bus.publisher::<CameraFrame>(CAMERA_FRAME).unwrap();
         let vehicle = bus.publisher::<VehicleState>(VEHICLE_STATE).unwrap();
         let phase = bus.publisher::<MissionPhase>(MISSION_PHASE).unwrap();
@@ -674,8 +684,7 @@ mod tests {
                 },
             );
             frame_index += 1;
-            let mut ctx = TaskContext::new("hazard", now, &level, &bus, &health, 1);
-            hazard.step(&mut ctx).unwrap();
+            hazard.step(&mut harness.context(now)).unwrap();
             reports.take_new().is_some()
         };
         assert!(look(8.0, "tracking"));

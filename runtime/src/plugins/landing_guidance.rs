@@ -52,6 +52,10 @@ struct Params {
     mpc_max_speed_m_s: f64,
     #[serde(default = "default_mpc_max_accel")]
     mpc_max_accel_m_s2: f64,
+    /// Wall-clock time a solve may take before the MPC flies its safe fallback; a board
+    /// slower than the one the default suits needs more.
+    #[serde(default = "default_mpc_solve_time_limit")]
+    mpc_solve_time_limit_s: f64,
     /// The phase in which the descent may start.
     #[serde(default = "default_descend_phase")]
     descend_in_phase: String,
@@ -73,6 +77,9 @@ fn default_mpc_max_speed() -> f64 {
 }
 fn default_mpc_max_accel() -> f64 {
     MpcConfig::default().max_accel_m_s2
+}
+fn default_mpc_solve_time_limit() -> f64 {
+    MpcConfig::default().solve_time_limit_s
 }
 fn default_descend_phase() -> String {
     "landing".into()
@@ -124,6 +131,7 @@ impl GuidanceTask {
                     horizon_steps: ((params.mpc_horizon_s / mpc.dt_s).round() as usize).max(1),
                     max_speed_m_s: params.mpc_max_speed_m_s,
                     max_accel_m_s2: params.mpc_max_accel_m_s2,
+                    solve_time_limit_s: params.mpc_solve_time_limit_s,
                     ..mpc
                 })
             }

@@ -220,6 +220,13 @@ mod tests {
         landing
             .params
             .insert("controller".into(), controller.to_string().into());
+        if controller == "mpc" {
+            // What is tested is the phase gating, not this machine's speed: a solve that runs
+            // late on a loaded machine would fly the fallback (hold the platform's velocity).
+            landing
+                .params
+                .insert("mpc_solve_time_limit_s".into(), 0.5.into());
+        }
         let mut builder = SchedulerBuilder::new(&registry);
         builder.task(&vehicle);
         builder.task(config.task("detection").unwrap());

@@ -459,6 +459,22 @@ impl PowerMeter for Flaky {
     }
 }
 
+/// One point measured on `meter` with no tasks; the warnings go to `warnings`.
+fn measure_alone(
+    meter: &mut dyn PowerMeter,
+    options: &SweepOptions,
+    warnings: &mut Vec<String>,
+) -> Result<Measurement, SweepError> {
+    measure(
+        meter,
+        options,
+        "p",
+        &mut NoInputs,
+        &mut Recorder::default(),
+        warnings,
+    )
+}
+
 #[test]
 fn meter_failures_are_left_out_or_abort() {
     let options = SweepOptions {
@@ -472,15 +488,7 @@ fn meter_failures_are_left_out_or_abort() {
         calls: 0,
         fail_every: 20,
     };
-    let m = measure(
-        &mut meter,
-        &options,
-        "p",
-        &mut NoInputs,
-        &mut Recorder::default(),
-        &mut warnings,
-    )
-    .unwrap();
+    let m = measure_alone(&mut meter, &options, &mut warnings).unwrap();
     assert!(m.failed_reads >= 1, "{m:?}");
     assert!(
         warnings
@@ -493,16 +501,9 @@ fn meter_failures_are_left_out_or_abort() {
         calls: 0,
         fail_every: 2,
     };
-    let error = measure(
-        &mut meter,
-        &options,
-        "p",
-        &mut NoInputs,
-        &mut Recorder::default(),
-        &mut warnings,
-    )
-    .unwrap_err()
-    .to_string();
+    let error = measure_alone(&mut meter, &options, &mut warnings)
+        .unwrap_err()
+        .to_string();
     assert!(
         error.contains("readings failed while measuring p"),
         "{error}"
@@ -517,16 +518,9 @@ fn meter_failures_are_left_out_or_abort() {
         calls: 0,
         fail_every: 1000,
     };
-    let error = measure(
-        &mut meter,
-        &short,
-        "p",
-        &mut NoInputs,
-        &mut Recorder::default(),
-        &mut warnings,
-    )
-    .unwrap_err()
-    .to_string();
+    let error = measure_alone(&mut meter, &short, &mut warnings)
+        .unwrap_err()
+        .to_string();
     assert!(error.contains("at least 2 are needed"), "{error}");
 }
 
