@@ -3,4 +3,5 @@
 
 pub mod control;
 pub mod estimation;
+pub mod tracking;
 pub mod vision;

@@ -4,3 +4,5 @@
 pub mod kalman;
 pub mod platform_velocity;
 pub mod projection;
+pub mod stereo_altitude;
+pub mod velocity_observer;
