@@ -7,6 +7,7 @@ mod model;
 mod plan;
 mod plot;
 mod profile;
+mod ptu_stereo;
 mod run;
 mod sim;
 
@@ -93,6 +94,9 @@ enum Command {
     /// meter (Jetson INA3221, RAPL, hwmon, NVML or an external meter's log) and write the
     /// profile `plan` reads; or build one from traces measured by hand (--from-csv).
     Profile(profile::ProfileArgs),
+    /// The ground-based PTU stereo localisation of seed 001: reproduce its error tables and
+    /// figures, or fly a scripted fixed-wing approach through the ground_stereo task.
+    PtuStereo(ptu_stereo::PtuStereoArgs),
     /// Plan the mission's QoS levels offline to fit the battery.
     Plan {
         /// The mission config.
@@ -129,6 +133,7 @@ fn main() -> ExitCode {
         Command::Check { file, json } => check::run(&file, json),
         Command::Sim(args) => sim::run(&args),
         Command::Profile(args) => profile::run(&args),
+        Command::PtuStereo(args) => ptu_stereo::run(&args),
         Command::Detect {
             images,
             layout,

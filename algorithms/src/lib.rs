@@ -3,5 +3,6 @@
 
 pub mod control;
 pub mod estimation;
+pub mod stereo;
 pub mod tracking;
 pub mod vision;

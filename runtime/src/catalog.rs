@@ -39,6 +39,12 @@ pub const BUILTIN_PLUGINS: &[PluginInfo] = &[
         resources: &[Resource::Gpu, Resource::Cpu],
         knobs: &[Knob::RateFps, Knob::PeriodMs],
     },
+    PluginInfo {
+        name: "ground_stereo",
+        summary: "ground-based PTU stereo (seed 001): the aircraft's runway position from two PTUs",
+        resources: &[Resource::Cpu],
+        knobs: &[Knob::PeriodMs, Knob::RateFps],
+    },
 ];
 
 /// A set of plugins the config may name.

@@ -113,3 +113,38 @@ pub struct HazardReport {
     /// Wall time of preprocessing, inference and decoding.
     pub inference_ms: f64,
 }
+
+/// Latest pair of PTU readings of the ground stereo rig (seed 001), one per camera frame.
+pub const PTU_PAIR: &str = "ground/ptu_pair";
+/// Latest target position from the ground stereo rig, one per PTU pair read.
+pub const GROUND_STEREO_FIX: &str = "ground/stereo_fix";
+
+/// One PTU's pan and tilt and where its tracker sees the target (pixels right of and above the
+/// image centre), in the stereo frame of `algorithms::stereo`.
+pub use algorithms::stereo::triangulation::PtuReading;
+
+/// Both PTUs' readings for one frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PtuPairReading {
+    /// When both cameras captured the frame, seconds on the task clock.
+    pub time_s: f64,
+    pub left: PtuReading,
+    pub right: PtuReading,
+}
+
+/// What the ground stereo task made of one PTU pair.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GroundStereoFix {
+    /// The readings' capture time.
+    pub time_s: f64,
+    /// The target in the runway frame, or why this pair gave none (the task carries on).
+    pub result: Result<
+        algorithms::stereo::triangulation::StereoFix,
+        algorithms::stereo::triangulation::TriangulationError,
+    >,
+    /// Pairs located and pairs refused since the task started.
+    pub located: u64,
+    pub rejected: u64,
+    /// Pairs published while the task was not looking (it runs slower than the cameras).
+    pub missed: u64,
+}

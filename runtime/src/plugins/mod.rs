@@ -1,5 +1,6 @@
 //! The task plugins built into qosrt, and the registry that holds them.
 
+pub mod ground_stereo;
 pub mod hazard_cnn;
 pub mod kalman_tracker;
 pub mod landing_guidance;
@@ -39,6 +40,7 @@ pub fn builtin_registry() -> Result<PluginRegistry, RegistryError> {
     kalman_tracker::register(&mut registry)?;
     landing_guidance::register(&mut registry)?;
     hazard_cnn::register(&mut registry)?;
+    ground_stereo::register(&mut registry)?;
     Ok(registry)
 }
 
