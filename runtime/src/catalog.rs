@@ -45,6 +45,13 @@ pub const BUILTIN_PLUGINS: &[PluginInfo] = &[
         resources: &[Resource::Cpu],
         knobs: &[Knob::PeriodMs, Knob::RateFps],
     },
+    PluginInfo {
+        name: "hybrid_tracking",
+        summary: "seed 000's UGV state estimation: tracking by detection, stereo altitude, \
+                  homography motion compensation, velocity observer",
+        resources: &[Resource::Cpu],
+        knobs: &[Knob::PeriodMs, Knob::RateFps],
+    },
 ];
 
 /// A set of plugins the config may name.

@@ -10,6 +10,7 @@ pub mod mission;
 pub mod outcome;
 pub mod power;
 pub mod scene;
+pub mod stereo_camera;
 pub mod tractor;
 pub mod vehicle;
 pub mod wind;

@@ -13,9 +13,10 @@
 use crate::autopilot::MavlinkAutopilot;
 use crate::camera::{SimCamera, SimCameraConfig, VehiclePose};
 use crate::hazard_score::HazardScore;
-use crate::outcome::{QosChange, SimOutcome, TrackSample};
+use crate::outcome::{LocalisationAccumulator, QosChange, SimOutcome, TrackSample};
 use crate::power::{RotorPowerModel, SimBattery};
 use crate::scene::{HazardField, PadPose, SimScene, TrackScatterConfig, TractorBody};
+use crate::stereo_camera::{SimStereoCamera, StereoCameraConfig};
 use crate::tractor::{PathKind, Tractor, TractorParams};
 use crate::vehicle::{Multirotor, VehicleParams};
 use crate::wind::{Wind, WindConfig};
@@ -31,8 +32,9 @@ use runtime::registry::PluginRegistry;
 use runtime::scheduler::{SchedulerBuilder, VirtualScheduler};
 use runtime::telemetry::MissionProgress;
 use runtime::topics::{
-    CameraFrame, HazardReport, LandingSetpoint, MissionPhase, VehicleState, CAMERA_FRAME, HAZARDS,
-    LANDING_SETPOINT, MISSION_PHASE, VEHICLE_STATE,
+    CameraFrame, DepthFrame, HazardReport, LandingSetpoint, MissionPhase, RelativeState,
+    VehicleState, CAMERA_FRAME, DEPTH_FRAME, HAZARDS, LANDING_SETPOINT, MISSION_PHASE,
+    RELATIVE_STATE, VEHICLE_STATE,
 };
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -82,6 +84,8 @@ pub struct SimOptions {
     pub faults: Faults,
     /// Keep a 1 Hz track of vehicle, tractor and battery for plotting.
     pub record_track: bool,
+    /// The downward stereo depth camera; it flies only when a task reads depth frames.
+    pub stereo: StereoCameraConfig,
 }
 
 impl Default for SimOptions {
@@ -97,6 +101,7 @@ impl Default for SimOptions {
             max_time_s: None,
             faults: Faults::default(),
             record_track: false,
+            stereo: StereoCameraConfig::default(),
         }
     }
 }
@@ -267,6 +272,25 @@ pub fn simulate(
         .filter(|t| CAMERA_PLUGINS.contains(&t.plugin.as_str()) && registry.contains(&t.plugin))
         .map(|t| t.name.clone())
         .collect();
+    // The stereo camera flies only for a task that reads depth: the missions without one are
+    // not slowed by it.
+    let reads_depth = config
+        .tasks
+        .iter()
+        .any(|t| DEPTH_PLUGINS.contains(&t.plugin.as_str()) && registry.contains(&t.plugin));
+    let mut stereo = if reads_depth {
+        let camera = SimStereoCamera::new(options.stereo, options.seed).map_err(|e| setup(&e))?;
+        let publisher = bus
+            .publisher::<DepthFrame>(DEPTH_FRAME)
+            .map_err(|e| setup(&e))?;
+        Some((camera, publisher))
+    } else {
+        None
+    };
+    let mut relative_states = bus
+        .subscriber::<RelativeState>(RELATIVE_STATE)
+        .map_err(|e| setup(&e))?;
+    let mut localisation = LocalisationAccumulator::default();
     let hazard_task = config
         .tasks
         .iter()
@@ -363,7 +387,23 @@ pub fn simulate(
                 };
                 match camera.capture_frame(time_s, &pose, &scene) {
                     Ok(frame) => {
+                        let frame_index = frame.frame_index;
                         frames.publish(now, frame);
+                        if let Some((stereo, depth_frames)) = stereo.as_mut() {
+                            match stereo.capture(
+                                frame_index,
+                                &pose.position_ned_m,
+                                &pose.attitude,
+                                &scene,
+                            ) {
+                                Ok(depth) => {
+                                    depth_frames.publish(now, depth);
+                                }
+                                Err(error) => {
+                                    events.push((time_s, format!("stereo camera: {error}")))
+                                }
+                            }
+                        }
                     }
                     Err(error) => events.push((time_s, format!("camera: {error}"))),
                 }
@@ -372,6 +412,27 @@ pub fn simulate(
 
         // The runtime's tasks up to now.
         scheduler.run_until(now)?;
+        // Where the runtime thinks the pad is, against the truth, while it tracks it.
+        if tracking_started_s.is_some() && vehicle.touchdown().is_none() {
+            if let Some(message) = relative_states.latest() {
+                let relative = &message.value;
+                let fresh = time_s - relative.estimate.time_s <= LOCALISATION_MAX_AGE_S;
+                let seen = relative
+                    .last_fix_time_s
+                    .is_some_and(|fix_s| time_s - fix_s <= LOCALISATION_MAX_FIX_GAP_S);
+                if fresh && seen {
+                    let pad = tractor.pad();
+                    let truth = vehicle.position_ned_m() - pad.centre_ned_m;
+                    localisation.add(
+                        &relative.estimate.uav_relative_ned_m,
+                        &truth,
+                        relative
+                            .platform_velocity_ned_m_s
+                            .map(|v| (v, pad.velocity_ned_m_s)),
+                    );
+                }
+            }
+        }
         if let Some(report) = hazard_reports.take_new() {
             hazard_score.add(scene.hazards(), &report.value);
             hazard_backend = Some(report.value.backend);
@@ -553,6 +614,7 @@ pub fn simulate(
         failed_tasks,
         skipped_tasks,
         speedup: end_s / wall_s.max(1e-9),
+        localisation: localisation.finish(),
         track,
     })
 }
@@ -632,17 +694,21 @@ fn apply_levels(
     Ok(())
 }
 
-/// The camera the detector's params describe (field of view and image size), at 10 fps like
-/// the seed's.
+/// The camera the tracker's params describe (field of view and image size: the
+/// `kalman_tracker`'s, else the `hybrid_tracking`'s), at 10 fps like the seed's.
 fn camera_config(model: &MissionModel) -> SimCameraConfig {
     let mut config = SimCameraConfig::default();
-    if let Some(fov) = plugin_number(model, "kalman_tracker", "camera_horizontal_fov_deg") {
+    let number = |key| {
+        plugin_number(model, "kalman_tracker", key)
+            .or_else(|| plugin_number(model, "hybrid_tracking", key))
+    };
+    if let Some(fov) = number("camera_horizontal_fov_deg") {
         config.horizontal_fov_deg = fov;
     }
-    if let Some(width) = plugin_number(model, "kalman_tracker", "image_width_px") {
+    if let Some(width) = number("image_width_px") {
         config.width_px = width as usize;
     }
-    if let Some(height) = plugin_number(model, "kalman_tracker", "image_height_px") {
+    if let Some(height) = number("image_height_px") {
         config.height_px = height as usize;
     }
     config
@@ -685,7 +751,15 @@ fn mission_plan(
 }
 
 /// Plugins that read the camera topic.
-const CAMERA_PLUGINS: [&str; 2] = ["landing_marker", "hazard_cnn"];
+const CAMERA_PLUGINS: [&str; 3] = ["landing_marker", "hazard_cnn", "hybrid_tracking"];
+
+/// Plugins that read the depth topic: the stereo camera flies only for them.
+const DEPTH_PLUGINS: [&str; 1] = ["hybrid_tracking"];
+
+/// A relative state counts towards the localisation error when it is at most this old …
+const LOCALISATION_MAX_AGE_S: f64 = 0.1;
+/// … and its last vision fix at most this old (the tracker has the target, not a memory of it).
+const LOCALISATION_MAX_FIX_GAP_S: f64 = 1.0;
 
 /// Where the tractor will drive in the next `duration_s`: its track sampled every half second,
 /// from a copy driven ahead (the tractor is deterministic).

@@ -63,6 +63,17 @@ impl PathKind {
         }
     }
 
+    /// How far the tractor drives before the path first turns: `Some(0)` for paths that
+    /// curve from their start (S, circle, figure-eight), `None` for the straight line.
+    pub fn first_turn_m(self) -> Option<f64> {
+        match self {
+            PathKind::Straight => None,
+            PathKind::SShape | PathKind::Circle | PathKind::FigureEight => Some(0.0),
+            PathKind::Rectangle => Some(RECTANGLE_LENGTH_M / 2.0),
+            PathKind::Turn90 | PathKind::Turn180 => Some(TURN_APPROACH_M),
+        }
+    }
+
     /// Closed paths repeat lap after lap; open ones continue straight past their end.
     pub fn is_closed(self) -> bool {
         matches!(
@@ -621,6 +632,37 @@ mod tests {
                 t.pose()
             })
             .collect()
+    }
+
+    #[test]
+    fn the_rectangle_turns_where_first_turn_m_says() {
+        // At its default speed the heading stays north until the first corner, then turns east.
+        let mut t = tractor(PathKind::Rectangle);
+        let corner_m = PathKind::Rectangle.first_turn_m().unwrap();
+        let mut heading_at = Vec::new();
+        for step in 0..(30.0 / 0.01) as usize {
+            t.step(0.01).unwrap();
+            heading_at.push((
+                step as f64 * 0.01,
+                t.pose().heading_rad,
+                t.distance_driven_m(),
+            ));
+        }
+        // Pure pursuit cuts the corner, starting its turn a few metres early.
+        let before = heading_at.iter().filter(|(_, _, d)| *d < corner_m - 6.0);
+        assert!(before.clone().count() > 100);
+        let worst = before.clone().map(|(_, h, _)| h.abs()).fold(0.0, f64::max);
+        assert!(worst < 0.05, "{worst}");
+        let after = heading_at
+            .iter()
+            .find(|(_, _, d)| *d > corner_m + 8.0)
+            .unwrap();
+        assert!(
+            (after.1 - std::f64::consts::FRAC_PI_2).abs() < 0.1,
+            "{after:?}"
+        );
+        assert_eq!(PathKind::Straight.first_turn_m(), None);
+        assert_eq!(PathKind::Circle.first_turn_m(), Some(0.0));
     }
 
     #[test]

@@ -11,18 +11,15 @@
 use nalgebra::{Matrix2, Vector2};
 use thiserror::Error;
 
+use crate::vision::image::FrameError;
+/// The depth image lives with the other images; re-exported here, where it is read.
+pub use crate::vision::image::{is_valid_depth, DepthImage};
+
 /// Depth data or a filter that cannot be used as given.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum StereoAltitudeError {
-    #[error("the depth image is empty ({width}×{height} pixels)")]
-    Empty { width: usize, height: usize },
-    #[error("a {width}×{height} depth image needs {needed} values, got {found}")]
-    Size {
-        width: usize,
-        height: usize,
-        needed: usize,
-        found: usize,
-    },
+    #[error("depth image: {0}")]
+    Frame(#[from] FrameError),
     #[error(
         "stereo focal length {focal_px} px and baseline {baseline_m} m must be positive and finite"
     )]
@@ -48,45 +45,7 @@ pub enum StereoAltitudeError {
     TimeNotAdvancing { time_s: f64, last_s: f64 },
 }
 
-/// A depth image: metres along the optical axis, row-major; NaN, ±∞, 0 or negative = no depth.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DepthImage {
-    width: usize,
-    height: usize,
-    depth_m: Vec<f32>,
-}
-
-/// Whether a depth value is a measurement.
-pub fn is_valid_depth(depth_m: f32) -> bool {
-    depth_m.is_finite() && depth_m > 0.0
-}
-
 impl DepthImage {
-    /// Takes `width × height` depths, row-major.
-    pub fn from_vec(
-        width: usize,
-        height: usize,
-        depth_m: Vec<f32>,
-    ) -> Result<Self, StereoAltitudeError> {
-        if width == 0 || height == 0 {
-            return Err(StereoAltitudeError::Empty { width, height });
-        }
-        let needed = width.saturating_mul(height);
-        if depth_m.len() != needed {
-            return Err(StereoAltitudeError::Size {
-                width,
-                height,
-                needed,
-                found: depth_m.len(),
-            });
-        }
-        Ok(Self {
-            width,
-            height,
-            depth_m,
-        })
-    }
-
     /// Equation 11: `Z = f·Tx / d` from a disparity map (pixels); a disparity that is not
     /// positive and finite gives no depth.
     pub fn from_disparity(
@@ -112,24 +71,7 @@ impl DepthImage {
                 }
             })
             .collect();
-        Self::from_vec(width, height, depth)
-    }
-
-    pub fn width(&self) -> usize {
-        self.width
-    }
-
-    pub fn height(&self) -> usize {
-        self.height
-    }
-
-    /// Depth at (x, y), metres; x, y must be inside the image.
-    pub fn get(&self, x: usize, y: usize) -> f32 {
-        self.depth_m[y * self.width + x]
-    }
-
-    pub fn data(&self) -> &[f32] {
-        &self.depth_m
+        Ok(Self::from_vec(width, height, depth)?)
     }
 }
 
@@ -188,12 +130,12 @@ pub fn central_window_altitude(
     {
         return config("min_depth_m..max_depth_m", window.min_depth_m, "a range");
     }
-    let w = window.width_px.min(depth.width);
-    let h = window.height_px.min(depth.height);
-    let (x0, y0) = ((depth.width - w) / 2, (depth.height - h) / 2);
+    let w = window.width_px.min(depth.width());
+    let h = window.height_px.min(depth.height());
+    let (x0, y0) = ((depth.width() - w) / 2, (depth.height() - h) / 2);
     let (mut sum, mut valid) = (0.0f64, 0usize);
     for y in y0..y0 + h {
-        for &z in &depth.depth_m[y * depth.width + x0..y * depth.width + x0 + w] {
+        for &z in &depth.row(y)[x0..x0 + w] {
             let z64 = z as f64;
             if is_valid_depth(z) && z64 >= window.min_depth_m && z64 <= window.max_depth_m {
                 sum += z64;
@@ -406,12 +348,12 @@ mod tests {
             Err(StereoAltitudeError::Stereo { .. })
         ));
         assert!(matches!(
-            DepthImage::from_vec(3, 2, vec![1.0; 5]),
-            Err(StereoAltitudeError::Size {
+            DepthImage::from_disparity(3, 2, &[1.0; 5], 400.0, 0.12),
+            Err(StereoAltitudeError::Frame(FrameError::DepthLength {
                 needed: 6,
                 found: 5,
                 ..
-            })
+            }))
         ));
     }
 

@@ -1,5 +1,5 @@
 //! Grayscale images as the detectors see them: 8-bit, row-major, with a row stride so a camera's
-//! padded buffers can be read in place.
+//! padded buffers can be read in place; and depth images as a stereo camera delivers them.
 
 use thiserror::Error;
 
@@ -24,6 +24,13 @@ pub enum FrameError {
         expected_height: usize,
         width: usize,
         height: usize,
+    },
+    #[error("a {width}×{height} depth image needs {needed} values, got {found}")]
+    DepthLength {
+        width: usize,
+        height: usize,
+        needed: usize,
+        found: usize,
     },
 }
 
@@ -197,9 +204,115 @@ impl GrayImage {
     }
 }
 
+/// Whether a depth value is a measurement: finite and positive (NaN, ±∞, 0 and negative values
+/// mean "no depth": a hole, the sky, out of range).
+pub fn is_valid_depth(depth_m: f32) -> bool {
+    depth_m.is_finite() && depth_m > 0.0
+}
+
+/// A depth image: metres along the optical axis (the camera's z, not the ray's length),
+/// row-major, tightly packed; see [`is_valid_depth`] for what counts as no depth. The
+/// renderer's [`crate::vision::render::render_depth`] makes exact ones; a stereo camera makes
+/// noisy ones ([`crate::estimation::stereo_altitude`] reads them).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthImage {
+    width: usize,
+    height: usize,
+    depth_m: Vec<f32>,
+}
+
+impl DepthImage {
+    /// Takes `width × height` depths, row-major.
+    pub fn from_vec(width: usize, height: usize, depth_m: Vec<f32>) -> Result<Self, FrameError> {
+        if width == 0 || height == 0 {
+            return Err(FrameError::Empty { width, height });
+        }
+        let needed = width.saturating_mul(height);
+        if depth_m.len() != needed {
+            return Err(FrameError::DepthLength {
+                width,
+                height,
+                needed,
+                found: depth_m.len(),
+            });
+        }
+        Ok(Self {
+            width,
+            height,
+            depth_m,
+        })
+    }
+
+    /// A `width × height` image of one depth everywhere (NaN for an image with no depth).
+    pub fn filled(width: usize, height: usize, depth_m: f32) -> Result<Self, FrameError> {
+        Self::from_vec(width, height, vec![depth_m; width.saturating_mul(height)])
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Depth at (x, y), metres; x, y must be inside the image.
+    pub fn get(&self, x: usize, y: usize) -> f32 {
+        self.depth_m[y * self.width + x]
+    }
+
+    pub fn set(&mut self, x: usize, y: usize, depth_m: f32) {
+        self.depth_m[y * self.width + x] = depth_m;
+    }
+
+    /// Row `y` (`width` depths).
+    pub fn row(&self, y: usize) -> &[f32] {
+        &self.depth_m[y * self.width..(y + 1) * self.width]
+    }
+
+    pub fn data(&self) -> &[f32] {
+        &self.depth_m
+    }
+
+    pub fn data_mut(&mut self) -> &mut [f32] {
+        &mut self.depth_m
+    }
+
+    /// How many pixels hold a valid depth.
+    pub fn valid_count(&self) -> usize {
+        self.depth_m.iter().filter(|&&z| is_valid_depth(z)).count()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn depth_images_check_their_size_and_count_valid_pixels() {
+        let mut depth =
+            DepthImage::from_vec(3, 2, vec![1.0, f32::NAN, 0.0, -2.0, 4.0, 5.5]).unwrap();
+        assert_eq!(depth.valid_count(), 3);
+        assert_eq!(depth.row(1), &[-2.0, 4.0, 5.5]);
+        depth.set(1, 0, 2.0);
+        assert_eq!(depth.get(1, 0), 2.0);
+        assert_eq!(depth.valid_count(), 4);
+        assert!(!is_valid_depth(f32::INFINITY));
+        assert_eq!(
+            DepthImage::from_vec(3, 2, vec![1.0; 5]).unwrap_err(),
+            FrameError::DepthLength {
+                width: 3,
+                height: 2,
+                needed: 6,
+                found: 5
+            }
+        );
+        assert!(matches!(
+            DepthImage::filled(0, 4, 1.0),
+            Err(FrameError::Empty { .. })
+        ));
+        assert_eq!(DepthImage::filled(4, 4, f32::NAN).unwrap().valid_count(), 0);
+    }
 
     #[test]
     fn views_respect_the_stride() {

@@ -23,7 +23,7 @@ use nalgebra::{Point3, Vector3};
 use thiserror::Error;
 
 use super::camera::{CameraPose, PinholeCamera};
-use super::image::{FrameError, GrayImage};
+use super::image::{DepthImage, FrameError, GrayImage};
 
 /// A scene or option that cannot be rendered as given.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -384,35 +384,7 @@ pub fn render(
     if width == 0 || height == 0 {
         return Err(FrameError::Empty { width, height }.into());
     }
-    let mut prepared = Vec::with_capacity(scene.patches.len());
-    for (index, p) in scene.patches.iter().enumerate() {
-        if !(p.width_m.is_finite() && p.height_m.is_finite() && p.width_m > 0.0 && p.height_m > 0.0)
-        {
-            return Err(RenderError::PatchSize {
-                index,
-                width_m: p.width_m,
-                height_m: p.height_m,
-            });
-        }
-        if ![p.north_m, p.east_m, p.down_m, p.yaw_rad]
-            .iter()
-            .all(|x| x.is_finite())
-        {
-            return Err(RenderError::PatchPose { index });
-        }
-        let (eu, ev) = p.axes();
-        let (su, sv) = (2.0 / p.width_m, 2.0 / p.height_m);
-        prepared.push(PreparedPatch {
-            bounds: normalized_bounds(pose, p),
-            centre: [p.north_m, p.east_m],
-            eu: [eu[0] * su, eu[1] * su],
-            ev: [ev[0] * sv, ev[1] * sv],
-            down_m: p.down_m,
-            texture: &p.texture,
-        });
-    }
-    // Topmost first, so that on equal distance the later patch wins (strict comparison below).
-    prepared.reverse();
+    let prepared = prepare_patches(pose, scene)?;
 
     let rotation = pose.camera_to_world.rotation.to_rotation_matrix();
     let r = rotation.matrix();
@@ -429,42 +401,10 @@ pub fn render(
                  y: f64,
                  ray: Vector3<f64>|
      -> Result<f32, (f64, f64)> {
-        if ray.z.abs() <= 1e-12 {
-            return Ok(scene.sky);
-        }
-        let inverse_z = 1.0 / ray.z;
-        let ground_t = (scene.ground_down_m - origin.z) * inverse_z;
-        let mut best_t = if ground_t > 0.0 {
-            ground_t
-        } else {
-            f64::INFINITY
-        };
-        let mut value = None;
-        for p in candidates {
-            let [x0, x1, y0, y1] = p.bounds;
-            if x < x0 || x > x1 || y < y0 || y > y1 {
-                continue;
-            }
-            let t = (p.down_m - origin.z) * inverse_z;
-            // A patch on the ground plane itself must beat the ground: compare with a tolerance.
-            if !(t > 0.0 && t <= best_t * (1.0 + 1e-12)) || (value.is_some() && t >= best_t) {
-                continue;
-            }
-            let dn = origin.x + ray.x * t - p.centre[0];
-            let de = origin.y + ray.y * t - p.centre[1];
-            let u = dn * p.eu[0] + de * p.eu[1];
-            let v = dn * p.ev[0] + de * p.ev[1];
-            if u.abs() <= 1.0 && v.abs() <= 1.0 {
-                best_t = t;
-                value = Some(p.texture.sample(u, v));
-            }
-        }
-        match value {
-            Some(v) => Ok(v),
-            None if best_t.is_finite() => {
-                Err((origin.x + ray.x * best_t, origin.y + ray.y * best_t))
-            }
-            None => Ok(scene.sky),
+        match nearest_hit(candidates, x, y, &ray, &origin, scene.ground_down_m) {
+            Hit::Patch { patch, u, v, .. } => Ok(patch.texture.sample(u, v)),
+            Hit::Ground { t } => Err((origin.x + ray.x * t, origin.y + ray.y * t)),
+            Hit::Nothing => Ok(scene.sky),
         }
     };
 
@@ -528,6 +468,161 @@ pub fn render(
         }
     }
     finish(pixels, width, height, &options.effects)
+}
+
+/// The scene's patches checked and prepared for the inner loop, topmost first.
+fn prepare_patches<'a>(
+    pose: &CameraPose,
+    scene: &'a Scene,
+) -> Result<Vec<PreparedPatch<'a>>, RenderError> {
+    let mut prepared = Vec::with_capacity(scene.patches.len());
+    for (index, p) in scene.patches.iter().enumerate() {
+        if !(p.width_m.is_finite() && p.height_m.is_finite() && p.width_m > 0.0 && p.height_m > 0.0)
+        {
+            return Err(RenderError::PatchSize {
+                index,
+                width_m: p.width_m,
+                height_m: p.height_m,
+            });
+        }
+        if ![p.north_m, p.east_m, p.down_m, p.yaw_rad]
+            .iter()
+            .all(|x| x.is_finite())
+        {
+            return Err(RenderError::PatchPose { index });
+        }
+        let (eu, ev) = p.axes();
+        let (su, sv) = (2.0 / p.width_m, 2.0 / p.height_m);
+        prepared.push(PreparedPatch {
+            bounds: normalized_bounds(pose, p),
+            centre: [p.north_m, p.east_m],
+            eu: [eu[0] * su, eu[1] * su],
+            ev: [ev[0] * sv, ev[1] * sv],
+            down_m: p.down_m,
+            texture: &p.texture,
+        });
+    }
+    // Topmost first, so that on equal distance the later patch wins (strict comparison below).
+    prepared.reverse();
+    Ok(prepared)
+}
+
+/// What a ray meets first.
+enum Hit<'p, 't> {
+    /// A patch at ray parameter `t`, at patch coordinates (u, v).
+    Patch {
+        t: f64,
+        patch: &'p PreparedPatch<'t>,
+        u: f64,
+        v: f64,
+    },
+    /// The ground plane at ray parameter `t`.
+    Ground { t: f64 },
+    /// Nothing: the sky (the ray is level, or points away from every plane).
+    Nothing,
+}
+
+/// The first surface the ray `origin + t·ray` (t > 0) meets among `candidates` and the ground
+/// plane `down = ground_down_m`; `(x, y)` are the ray's normalised camera coordinates, for the
+/// patches' bounds. The one geometry of [`render`] and [`render_depth`]: with `ray` the camera
+/// ray (x, y, 1) rotated into the world, `t` is the hit's depth along the optical axis.
+#[inline(always)]
+fn nearest_hit<'p, 't>(
+    candidates: &[&'p PreparedPatch<'t>],
+    x: f64,
+    y: f64,
+    ray: &Vector3<f64>,
+    origin: &Vector3<f64>,
+    ground_down_m: f64,
+) -> Hit<'p, 't> {
+    if ray.z.abs() <= 1e-12 {
+        return Hit::Nothing;
+    }
+    let inverse_z = 1.0 / ray.z;
+    let ground_t = (ground_down_m - origin.z) * inverse_z;
+    let mut best_t = if ground_t > 0.0 {
+        ground_t
+    } else {
+        f64::INFINITY
+    };
+    let mut best: Option<(&'p PreparedPatch<'t>, f64, f64)> = None;
+    for &p in candidates {
+        let [x0, x1, y0, y1] = p.bounds;
+        if x < x0 || x > x1 || y < y0 || y > y1 {
+            continue;
+        }
+        let t = (p.down_m - origin.z) * inverse_z;
+        // A patch on the ground plane itself must beat the ground: compare with a tolerance.
+        if !(t > 0.0 && t <= best_t * (1.0 + 1e-12)) || (best.is_some() && t >= best_t) {
+            continue;
+        }
+        let dn = origin.x + ray.x * t - p.centre[0];
+        let de = origin.y + ray.y * t - p.centre[1];
+        let u = dn * p.eu[0] + de * p.eu[1];
+        let v = dn * p.ev[0] + de * p.ev[1];
+        if u.abs() <= 1.0 && v.abs() <= 1.0 {
+            best_t = t;
+            best = Some((p, u, v));
+        }
+    }
+    match best {
+        Some((patch, u, v)) => Hit::Patch {
+            t: best_t,
+            patch,
+            u,
+            v,
+        },
+        None if best_t.is_finite() => Hit::Ground { t: best_t },
+        None => Hit::Nothing,
+    }
+}
+
+/// The depth of `scene` seen by `camera` from `pose`: for every pixel centre, the distance along
+/// the optical axis (the camera's z) to the first surface its ray meets, by the same ray casting
+/// and patch geometry as [`render`]; NaN where the ray meets nothing (the sky). An ideal depth
+/// camera: a stereo camera's noise and range are the caller's to add.
+pub fn render_depth(
+    camera: &PinholeCamera,
+    pose: &CameraPose,
+    scene: &Scene,
+) -> Result<DepthImage, RenderError> {
+    let (width, height) = (camera.width_px, camera.height_px);
+    if width == 0 || height == 0 {
+        return Err(FrameError::Empty { width, height }.into());
+    }
+    let prepared = prepare_patches(pose, scene)?;
+    let rotation = pose.camera_to_world.rotation.to_rotation_matrix();
+    let r = rotation.matrix();
+    let origin = pose.position_ned_m();
+    let undistorted = camera.distortion.is_zero();
+    let mut depth = vec![f32::NAN; width * height];
+    let mut candidates: Vec<&PreparedPatch<'_>> = Vec::with_capacity(prepared.len());
+    for row in 0..height {
+        candidates.clear();
+        let row_y = (row as f64 - camera.cy_px) / camera.fy_px;
+        candidates.extend(
+            prepared
+                .iter()
+                .filter(|p| !undistorted || (p.bounds[2] <= row_y && p.bounds[3] >= row_y)),
+        );
+        for (col, out) in depth[row * width..(row + 1) * width].iter_mut().enumerate() {
+            let (x, y) = if undistorted {
+                ((col as f64 - camera.cx_px) / camera.fx_px, row_y)
+            } else {
+                camera.normalized(col as f64, row as f64)
+            };
+            let ray = Vector3::new(
+                r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)],
+                r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)],
+                r[(2, 0)] * x + r[(2, 1)] * y + r[(2, 2)],
+            );
+            *out = match nearest_hit(&candidates, x, y, &ray, &origin, scene.ground_down_m) {
+                Hit::Patch { t, .. } | Hit::Ground { t } => t as f32,
+                Hit::Nothing => f32::NAN,
+            };
+        }
+    }
+    Ok(DepthImage::from_vec(width, height, depth)?)
 }
 
 /// The normalised-coordinate bounds of a patch seen from `pose` (see [`PreparedPatch::bounds`]),
@@ -1011,6 +1106,117 @@ mod tests {
         // The later patch lies on the ground, below the raised one: the raised one stays visible.
         assert_eq!(image.get(320, 240), 255);
         assert_eq!(image.get(320 + 60, 240), 128);
+    }
+
+    /// The closed form for a plane: with n the plane's unit normal (world down) and d the
+    /// camera's distance to it, both in the camera frame, the point seen through the normalised
+    /// ray r = (x, y, 1) lies at depth d / (n·r).
+    fn plane_depth(
+        camera: &PinholeCamera,
+        pose: &CameraPose,
+        plane_down_m: f64,
+        u: f64,
+        v: f64,
+    ) -> Option<f64> {
+        let n_camera = pose.camera_to_world.rotation.inverse() * Vector3::z();
+        let d = plane_down_m - pose.position_ned_m().z;
+        let unit = camera.unproject(u, v).into_inner();
+        let ray = unit / unit.z;
+        let along = n_camera.dot(&ray);
+        (along > 1e-9).then(|| d / along)
+    }
+
+    #[test]
+    fn depth_of_flat_ground_matches_the_closed_form_under_a_tilted_camera() {
+        let pinhole = PinholeCamera::from_fov(80, 60, 70f64.to_radians()).unwrap();
+        let distorted = pinhole.with_distortion(crate::vision::camera::RadialTangential {
+            k1: -0.12,
+            k2: 0.03,
+            p1: 0.001,
+            p2: -0.0008,
+            k3: 0.0,
+        });
+        let pose = CameraPose::downward(Vector3::new(2.0, -1.0, -6.0), 0.2, -0.15, 0.8);
+        let scene = Scene::new(Texture::uniform(0.5));
+        for camera in [pinhole, distorted] {
+            let depth = render_depth(&camera, &pose, &scene).unwrap();
+            assert_eq!((depth.width(), depth.height()), (80, 60));
+            let mut spread = (f64::INFINITY, 0f64);
+            for y in 0..60 {
+                for x in 0..80 {
+                    let expected = plane_depth(&camera, &pose, 0.0, x as f64, y as f64).unwrap();
+                    let got = depth.get(x, y) as f64;
+                    assert!(
+                        (got - expected).abs() < 1e-5 * expected,
+                        "({x}, {y}): {got} vs {expected}"
+                    );
+                    // And the point at that depth on the pixel's ray lies on the ground.
+                    let (nx, ny) = camera.normalized(x as f64, y as f64);
+                    let point = pose.camera_to_world_point(&Point3::new(nx * got, ny * got, got));
+                    assert!(point.z.abs() < 1e-4, "{point}");
+                    spread = (spread.0.min(got), spread.1.max(got));
+                }
+            }
+            // Tilted: the depth is not uniform (a level camera's would be).
+            assert!(spread.1 - spread.0 > 1.0, "{spread:?}");
+        }
+    }
+
+    #[test]
+    fn depth_sees_raised_patches_where_the_image_does_and_nan_is_the_sky() {
+        // A white raised patch (2 m above a black ground) under a tilted camera: every pixel the
+        // renderer draws white has the patch plane's depth, every black one the ground's.
+        let camera = PinholeCamera::from_fov(96, 72, 60f64.to_radians()).unwrap();
+        let pose = CameraPose::downward(Vector3::new(0.4, 0.3, -7.0), -0.1, 0.12, 0.3);
+        let scene = Scene::new(Texture::uniform(0.0))
+            .with_patch(Patch::square(0.0, 0.0, 0.5, 2.0, Texture::uniform(1.0)).at_down_m(-2.0));
+        let image = render(&camera, &pose, &scene, &exact()).unwrap();
+        let depth = render_depth(&camera, &pose, &scene).unwrap();
+        let mut on_patch = 0;
+        for y in 0..72 {
+            for x in 0..96 {
+                let (u, v) = (x as f64, y as f64);
+                let z = depth.get(x, y) as f64;
+                let plane = if image.get(x, y) == 255 {
+                    on_patch += 1;
+                    -2.0
+                } else {
+                    0.0
+                };
+                let expected = plane_depth(&camera, &pose, plane, u, v).unwrap();
+                assert!((z - expected).abs() < 1e-5 * expected, "({x}, {y})");
+            }
+        }
+        assert!(on_patch > 100, "{on_patch} pixels on the patch");
+        // A level camera sees flat ground at its height everywhere, the patch 2 m nearer.
+        let level = CameraPose::downward(Vector3::new(0.0, 0.0, -7.0), 0.0, 0.0, 0.0);
+        let depth = render_depth(&camera, &level, &scene).unwrap();
+        assert!((depth.get(48, 36) - 5.0).abs() < 1e-5);
+        assert!((depth.get(2, 2) - 7.0).abs() < 1e-5);
+        // Pitched up 80°: the top of the image sees the sky (NaN), the bottom the ground.
+        let horizon = CameraPose::downward(Vector3::new(0.0, 0.0, -7.0), 0.0, 1.4, 0.0);
+        let depth = render_depth(&camera, &horizon, &scene).unwrap();
+        for (x, y) in [(10, 0), (50, 5), (90, 70), (48, 36)] {
+            let expected = plane_depth(&camera, &horizon, 0.0, x as f64, y as f64);
+            let z = depth.get(x, y);
+            match expected {
+                None => assert!(z.is_nan(), "({x}, {y}): {z}"),
+                Some(e) => assert!((z as f64 - e).abs() < 1e-4 * e, "({x}, {y}): {z} vs {e}"),
+            }
+        }
+        assert!(depth.get(48, 0).is_nan() && depth.get(48, 71).is_finite());
+        // Bad scenes are refused as the renderer refuses them.
+        let bad = Scene::new(Texture::uniform(0.5)).with_patch(Patch::square(
+            0.0,
+            0.0,
+            f64::NAN,
+            1.0,
+            Texture::uniform(1.0),
+        ));
+        assert!(matches!(
+            render_depth(&camera, &pose, &bad),
+            Err(RenderError::PatchPose { index: 0 })
+        ));
     }
 
     #[test]

@@ -2,6 +2,7 @@
 
 pub mod ground_stereo;
 pub mod hazard_cnn;
+pub mod hybrid_tracking;
 pub mod kalman_tracker;
 pub mod landing_guidance;
 pub mod landing_marker;
@@ -41,6 +42,7 @@ pub fn builtin_registry() -> Result<PluginRegistry, RegistryError> {
     landing_guidance::register(&mut registry)?;
     hazard_cnn::register(&mut registry)?;
     ground_stereo::register(&mut registry)?;
+    hybrid_tracking::register(&mut registry)?;
     Ok(registry)
 }
 
