@@ -2,6 +2,7 @@
 
 mod check;
 mod detect;
+mod fly;
 mod frames;
 mod model;
 mod plan;
@@ -25,6 +26,9 @@ use std::process::ExitCode;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Log events as JSON lines on stderr instead of readable text.
+    #[arg(long, global = true)]
+    log_json: bool,
 }
 
 #[derive(Subcommand)]
@@ -74,20 +78,43 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Run the mission's tasks onboard. For now as a dry run on synthetic inputs (rendered
-    /// frames, modelled battery telemetry): flight needs the MAVLink link.
+    /// Run the mission onboard beside a PX4 or ArduPilot autopilot (`--mavlink`), observing
+    /// unless `--control` is given; or as a dry run on synthetic inputs (`--dry-run`).
     Run {
         /// The mission config.
         #[arg(default_value = "qos.toml")]
         file: PathBuf,
+        /// The autopilot: udpin:HOST:PORT, udpout:HOST:PORT, tcpout:HOST:PORT or
+        /// serial:DEVICE:BAUD (e.g. udpin:0.0.0.0:14540 for PX4's onboard link).
+        #[arg(
+            long,
+            value_name = "URL",
+            required_unless_present = "dry_run",
+            conflicts_with = "dry_run"
+        )]
+        mavlink: Option<String>,
+        /// Camera frames: an image folder (folder:PATH[@FPS]).
+        #[arg(long, value_name = "SOURCE", requires = "mavlink")]
+        camera: Option<String>,
+        /// Command the vehicle: arm, take off, fly the phases in OFFBOARD/GUIDED and land.
+        /// Without it qosrt never arms, changes mode or sends a setpoint.
+        #[arg(long, requires = "mavlink")]
+        control: bool,
+        /// Where the tractor waits, metres north and east of the take-off point.
+        #[arg(long, value_name = "N,E", value_parser = parse_north_east, default_value = "0,0", requires = "mavlink")]
+        meeting_point_ne_m: [f64; 2],
+        /// Print one JSON report at the end.
+        #[arg(long, requires = "mavlink")]
+        json: bool,
         /// Start every task and run it on synthetic inputs, then print per-task statistics.
-        #[arg(long, required = true)]
+        #[arg(long)]
         dry_run: bool,
-        /// How long the dry run lasts.
-        #[arg(long, default_value_t = 5.0, value_name = "S")]
-        duration_s: f64,
-        /// The mission phase to run (default: the one with the most tasks).
-        #[arg(long, value_name = "NAME")]
+        /// How long to run: the dry run (default 5 s), or the flight (then qosrt lands the
+        /// vehicle where it is if it holds control).
+        #[arg(long, value_name = "S")]
+        duration_s: Option<f64>,
+        /// The mission phase of a dry run (default: the one with the most tasks).
+        #[arg(long, value_name = "NAME", requires = "dry_run")]
         phase: Option<String>,
     },
     /// Measure this board's power at each combination of the tasks' QoS levels with its power
@@ -120,15 +147,18 @@ enum Command {
 fn main() -> ExitCode {
     // Warnings and errors from the runtime (a task that failed, the hazard CNN falling back to
     // the CPU) reach the user on stderr; RUST_LOG=info (or debug) shows every QoS and mode change.
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
-        )
-        .init();
     let cli = Cli::parse();
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_log_level(&cli.command)));
+    let logs = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(filter);
+    if cli.log_json {
+        logs.json().init();
+    } else {
+        logs.with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+            .init();
+    }
     match cli.command {
         Command::Check { file, json } => check::run(&file, json),
         Command::Sim(args) => sim::run(&args),
@@ -162,10 +192,29 @@ fn main() -> ExitCode {
         }),
         Command::Run {
             file,
-            dry_run: _,
+            mavlink: Some(mavlink),
+            camera,
+            control,
+            meeting_point_ne_m,
+            json,
+            dry_run: false,
+            duration_s,
+            phase: _,
+        } => fly::run(&fly::FlyArgs {
+            file,
+            mavlink,
+            camera,
+            control,
+            duration_s,
+            json,
+            meeting_point_ne_m,
+        }),
+        Command::Run {
+            file,
             duration_s,
             phase,
-        } => run::run(&file, duration_s, phase),
+            ..
+        } => run::run(&file, duration_s.unwrap_or(5.0), phase),
         Command::Plan {
             file,
             battery_wh,
@@ -180,4 +229,31 @@ fn main() -> ExitCode {
             svg,
         }),
     }
+}
+
+/// Flying logs what it does as it goes (mode changes, QoS changes, faults); the other commands
+/// print their results and log only warnings.
+fn default_log_level(command: &Command) -> &'static str {
+    match command {
+        Command::Run { dry_run: false, .. } => "info",
+        _ => "warn",
+    }
+}
+
+/// `N,E` in metres, e.g. `15,0`.
+fn parse_north_east(text: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    let [north, east] = parts[..] else {
+        return Err(format!(
+            "expected N,E in metres (e.g. 15,0), found {text:?}"
+        ));
+    };
+    let number = |part: &str| {
+        part.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("{part:?} is not a number of metres"))
+    };
+    Ok([number(north)?, number(east)?])
 }

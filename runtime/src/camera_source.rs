@@ -9,8 +9,8 @@
 //! Frame indices count the frames the source tried to deliver, bad ones included, so a consumer
 //! sees a bad or dropped frame as a gap (see [`CameraFrame::frame_index`]).
 //!
-//! The built-in simulator's camera (`sim::camera::SimCamera::capture_frame`) hands out the same
-//! [`CameraFrame`] directly.
+//! The simulator's harness renders its frames into a [`MemorySource`]; they reach the tasks
+//! the way a real camera's do.
 //!
 //! # A V4L2 camera
 //!
@@ -60,14 +60,60 @@ pub enum CameraSourceError {
     Config { name: &'static str, reason: String },
 }
 
-/// Anything that delivers camera frames: the simulator, an image folder, a V4L2 device.
+/// A frame with the time its exposure was taken, on the runtime's clock: the tracker's delay
+/// compensation works from it, so a source stamps as close to the sensor as it can.
+#[derive(Debug, Clone)]
+pub struct CapturedFrame {
+    pub frame: CameraFrame,
+    pub capture_time_s: f64,
+}
+
+/// Anything that delivers camera frames: the simulator, an image folder, a GStreamer pipeline.
 pub trait CameraSource: Send {
     /// A short name for logs and errors.
     fn name(&self) -> &str;
 
     /// The next frame if one is ready at `now_s` (seconds on the runtime's clock), `Ok(None)` if
     /// not yet.
-    fn next_frame(&mut self, now_s: f64) -> Result<Option<CameraFrame>, CameraSourceError>;
+    fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError>;
+}
+
+/// Frames handed in by their producer in the same process (the simulator's harness renders
+/// them): a queue, drained in order by [`CameraSource::next_frame`].
+#[derive(Debug, Clone, Default)]
+pub struct MemorySource {
+    queue: Arc<std::sync::Mutex<std::collections::VecDeque<CapturedFrame>>>,
+}
+
+impl MemorySource {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Hands in a frame; the source delivers it once the clock reaches its capture time.
+    pub fn push(&self, frame: CapturedFrame) {
+        self.lock().push_back(frame);
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::VecDeque<CapturedFrame>> {
+        self.queue
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+impl CameraSource for MemorySource {
+    fn name(&self) -> &str {
+        "memory"
+    }
+
+    fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError> {
+        let mut queue = self.lock();
+        match queue.front() {
+            Some(frame) if frame.capture_time_s <= now_s => Ok(queue.pop_front()),
+            _ => Ok(None),
+        }
+    }
 }
 
 /// How an image folder is played.
@@ -196,7 +242,7 @@ impl CameraSource for ImageFolderSource {
         &self.name
     }
 
-    fn next_frame(&mut self, now_s: f64) -> Result<Option<CameraFrame>, CameraSourceError> {
+    fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError> {
         if !now_s.is_finite() {
             return Err(CameraSourceError::Config {
                 name: "now_s",
@@ -221,9 +267,13 @@ impl CameraSource for ImageFolderSource {
         self.played += 1;
         let path = self.files[(frame_index % count) as usize].clone();
         let image = self.load(&path)?;
-        Ok(Some(CameraFrame {
-            frame_index,
-            image: Arc::new(image),
+        Ok(Some(CapturedFrame {
+            frame: CameraFrame {
+                frame_index,
+                image: Arc::new(image),
+            },
+            // A recording's frames are taken as captured when they play.
+            capture_time_s: start_s + frame_index as f64 / self.rate_fps,
         }))
     }
 }
@@ -282,9 +332,12 @@ mod tests {
             t += 0.1;
             result
         };
-        let level = |r: Result<Option<CameraFrame>, CameraSourceError>| {
-            let frame = r.unwrap().unwrap();
-            (frame.frame_index, frame.image.get(3, 3))
+        let level = |r: Result<Option<CapturedFrame>, CameraSourceError>| {
+            let captured = r.unwrap().unwrap();
+            // Stamped when it was due: 10 fps from the first poll at 100 s.
+            let due_s = 100.0 + captured.frame.frame_index as f64 * 0.1;
+            assert!((captured.capture_time_s - due_s).abs() < 1e-9);
+            (captured.frame.frame_index, captured.frame.image.get(3, 3))
         };
         assert_eq!(level(next(&mut source)), (0, 10));
         assert_eq!(level(next(&mut source)), (1, 20));
@@ -323,12 +376,32 @@ mod tests {
         let mut source = ImageFolderSource::open(config).unwrap();
         let levels: Vec<u8> = (0..5)
             .map(|k| {
-                let frame = source.next_frame(k as f64 * 0.2).unwrap().unwrap();
+                let frame = source.next_frame(k as f64 * 0.2).unwrap().unwrap().frame;
                 assert_eq!(frame.frame_index, k);
                 frame.image.get(0, 0)
             })
             .collect();
         assert_eq!(levels, [1, 2, 1, 2, 1]);
+    }
+
+    #[test]
+    fn a_memory_source_delivers_in_order_once_captured() {
+        let source = MemorySource::new();
+        let mut reader = source.clone();
+        for (index, capture_time_s) in [(0u64, 1.0), (1, 1.1)] {
+            source.push(CapturedFrame {
+                frame: CameraFrame {
+                    frame_index: index,
+                    image: Arc::new(GrayImage::filled(4, 4, 0).unwrap()),
+                },
+                capture_time_s,
+            });
+        }
+        assert!(reader.next_frame(0.99).unwrap().is_none());
+        let first = reader.next_frame(1.2).unwrap().unwrap();
+        let second = reader.next_frame(1.2).unwrap().unwrap();
+        assert_eq!((first.frame.frame_index, second.frame.frame_index), (0, 1));
+        assert!(reader.next_frame(5.0).unwrap().is_none());
     }
 
     #[test]

@@ -7,7 +7,7 @@
 use crate::energy::MissionModel;
 use crate::governor::Governor;
 use crate::registry::PluginRegistry;
-use crate::scheduler::{RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats};
+use crate::scheduler::{PhaseGate, RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats};
 use crate::telemetry::{BatteryTelemetry, MissionProgress};
 use crate::topics::{CameraFrame, VehicleState, CAMERA_FRAME, VEHICLE_STATE};
 use algorithms::estimation::projection::Attitude;
@@ -81,8 +81,10 @@ pub fn dry_run(
         .map_err(|e| DryRunError::Governor(e.to_string()))?;
     let pack = model.battery_spec(None).map_err(DryRunError::Governor)?;
 
+    // Only the phase's tasks run, as in flight.
     let mut scheduler = SchedulerBuilder::new(registry)
         .tasks(&config.tasks)
+        .phase_gate(PhaseGate::Phase(phase_name.clone()))
         .build_real_time(RealTimeOptions::default())?;
     let camera = scheduler
         .bus()

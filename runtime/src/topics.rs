@@ -72,8 +72,9 @@ pub struct LandingSetpoint {
     pub land_command: bool,
 }
 
-/// The mission's current phase, published by whatever flies the mission (the simulator's
-/// mission sequencer, or `qosrt run`); tasks whose behaviour depends on the phase read it.
+/// The mission's current phase, published by the mission runner when a phase begins. Which
+/// tasks run in it is the scheduler's business (a task's `phases`); a task that behaves
+/// differently in the landing reads it.
 pub const MISSION_PHASE: &str = "mission/phase";
 
 /// Which phase of the mission is flying.
@@ -82,6 +83,8 @@ pub struct MissionPhase {
     /// Index into the config's `[[mission.phase]]`, in flight order.
     pub index: usize,
     pub name: Arc<str>,
+    /// The mission's last phase: the one that lands.
+    pub landing: bool,
 }
 
 /// Latest hazard report, one per frame the hazard CNN processed.

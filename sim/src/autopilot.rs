@@ -23,7 +23,7 @@ use mavlink::dialects::common::{
     MavLandedState, MavMessage, MavModeFlag, MavResult, MavSensorOrientation, MavState,
     MavSysStatusSensor, MavType, MavVtolState, PositionTargetTypemask, ATTITUDE_DATA,
     BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_LONG_DATA, DISTANCE_SENSOR_DATA,
-    EXTENDED_SYS_STATE_DATA, HEARTBEAT_DATA, LOCAL_POSITION_NED_DATA,
+    EXTENDED_SYS_STATE_DATA, GLOBAL_POSITION_INT_DATA, HEARTBEAT_DATA, LOCAL_POSITION_NED_DATA,
     SET_POSITION_TARGET_LOCAL_NED_DATA, SYS_STATUS_DATA, TIMESYNC_DATA,
 };
 use mavlink::{MavHeader, MavlinkVersion};
@@ -200,6 +200,7 @@ impl MavlinkAutopilot {
         }
         if take_due(&mut due.position_s, time_s, POSITION_PERIOD_S) {
             self.send(&local_position(snapshot, time_boot_ms))?;
+            self.send(&global_position(snapshot, time_boot_ms))?;
         }
         if take_due(&mut due.distance_s, time_s, DISTANCE_PERIOD_S) {
             self.send(&distance_sensor(snapshot, time_boot_ms))?;
@@ -217,6 +218,7 @@ impl MavlinkAutopilot {
             self.send_clock(&MavMessage::TIMESYNC(TIMESYNC_DATA {
                 tc1: 0,
                 ts1: t_ns as i64,
+                ..Default::default()
             }))?;
         }
         Ok(t_ns)
@@ -290,6 +292,7 @@ impl MavlinkAutopilot {
         self.send(&MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
             command,
             result,
+            ..Default::default()
         }))
     }
 
@@ -317,6 +320,7 @@ impl MavlinkAutopilot {
                         self.send(&MavMessage::TIMESYNC(TIMESYNC_DATA {
                             tc1: Self::time_ns(self.now_s).max(1) as i64,
                             ts1: timesync.ts1,
+                            ..Default::default()
                         }))?;
                     }
                     _ => {}
@@ -498,6 +502,33 @@ fn local_position(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> MavMessage {
     })
 }
 
+/// The home point's altitude above mean sea level, as PX4's SIH starts (its default location).
+pub const HOME_AMSL_M: f64 = 488.0;
+/// The home point's latitude and longitude (degrees), SIH's default.
+const HOME_LAT_LON_DEG: (f64, f64) = (47.397_742, 8.545_594);
+const EARTH_RADIUS_M: f64 = 6_371_000.0;
+
+/// GLOBAL_POSITION_INT: the local position on a flat earth around home; PX4 gives AMSL and
+/// relative altitudes in mm, which a companion needs for MAV_CMD_NAV_TAKEOFF (AMSL).
+fn global_position(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> MavMessage {
+    let position = snapshot.position_ned_m;
+    let (lat0, lon0) = HOME_LAT_LON_DEG;
+    let lat_deg = lat0 + (position.x / EARTH_RADIUS_M).to_degrees();
+    let lon_deg = lon0 + (position.y / (EARTH_RADIUS_M * lat0.to_radians().cos())).to_degrees();
+    let height_m = -position.z;
+    MavMessage::GLOBAL_POSITION_INT(GLOBAL_POSITION_INT_DATA {
+        time_boot_ms,
+        lat: (lat_deg * 1e7).round() as i32,
+        lon: (lon_deg * 1e7).round() as i32,
+        alt: ((HOME_AMSL_M + height_m) * 1000.0).round() as i32,
+        relative_alt: (height_m * 1000.0).round() as i32,
+        vx: (snapshot.velocity_ned_m_s.x * 100.0).round() as i16,
+        vy: (snapshot.velocity_ned_m_s.y * 100.0).round() as i16,
+        vz: (snapshot.velocity_ned_m_s.z * 100.0).round() as i16,
+        hdg: u16::MAX,
+    })
+}
+
 /// Out of range (`None`) is reported as UINT16_MAX, which the runtime reads as "no reading".
 fn distance_sensor(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> MavMessage {
     let current_distance = match snapshot.rangefinder_m {
@@ -522,6 +553,7 @@ fn distance_sensor(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> MavMessage 
         id: 0,
         orientation: MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270,
         covariance: u8::MAX,
+        ..Default::default()
     })
 }
 
@@ -559,6 +591,7 @@ fn battery_status(snapshot: &VehicleSnapshot) -> MavMessage {
         battery_function: MavBatteryFunction::MAV_BATTERY_FUNCTION_ALL,
         mavtype: MavBatteryType::MAV_BATTERY_TYPE_LIPO,
         battery_remaining: remaining_percent(battery.remaining_fraction),
+        ..Default::default()
     })
 }
 
@@ -578,6 +611,7 @@ fn sys_status(snapshot: &VehicleSnapshot) -> MavMessage {
         errors_count3: 0,
         errors_count4: 0,
         battery_remaining: remaining_percent(battery.remaining_fraction),
+        ..Default::default()
     })
 }
 
@@ -637,8 +671,8 @@ pub fn decode_velocity_setpoint(
     })
 }
 
-/// COMMAND_LONG → command; `Err` carries the MAV_RESULT to answer at once (unsupported command
-/// or unknown mode).
+/// COMMAND_LONG → command; `Err` carries the MAV_RESULT to answer at once (an unsupported
+/// command, an unknown mode, or a request needing no action).
 pub fn decode_command_long(long: &COMMAND_LONG_DATA) -> Result<AutopilotCommand, MavResult> {
     match long.command {
         MavCmd::MAV_CMD_COMPONENT_ARM_DISARM => {
@@ -651,14 +685,22 @@ pub fn decode_command_long(long: &COMMAND_LONG_DATA) -> Result<AutopilotCommand,
             }
         }
         MavCmd::MAV_CMD_NAV_TAKEOFF => {
-            let altitude_m = f64::from(long.param7);
-            if altitude_m.is_finite() && altitude_m > 0.0 {
-                Ok(AutopilotCommand::Takeoff { altitude_m })
+            // PX4 reads param7 as altitude above mean sea level; NaN takes MIS_TAKEOFF_ALT.
+            let amsl_m = f64::from(long.param7);
+            if amsl_m.is_nan() {
+                Ok(AutopilotCommand::SetMode(FlightMode::Takeoff))
+            } else if amsl_m.is_finite() && amsl_m > HOME_AMSL_M {
+                Ok(AutopilotCommand::Takeoff {
+                    altitude_m: amsl_m - HOME_AMSL_M,
+                })
             } else {
                 Err(MavResult::MAV_RESULT_DENIED)
             }
         }
         MavCmd::MAV_CMD_NAV_LAND => Ok(AutopilotCommand::Land),
+        // Answered at once: like PX4 it accepts the request, and its fixed streams already
+        // run at the rates the runtime asks for.
+        MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => Err(MavResult::MAV_RESULT_ACCEPTED),
         MavCmd::MAV_CMD_DO_SET_MODE => {
             let custom_flag = f32::from(MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED.bits());
             let base_mode = long.param1;

@@ -1,6 +1,6 @@
-//! One simulated mission: the world (vehicle, tractor, wind, camera, pack) and the runtime
-//! (the configured task plugins on the virtual-time scheduler, the governor, the mission
-//! sequencer), joined only by MAVLink over UDP on the loopback and by camera frames.
+//! One simulated mission: the world (vehicle, tractor, wind, camera, pack) and the runtime's
+//! mission runner (the configured task plugins on the virtual-time scheduler, the governor, the
+//! mission sequencer), joined only by MAVLink over UDP on the loopback and by camera frames.
 //!
 //! Time advances in ticks of [`TICK_S`] (50 Hz, the rate at which PX4 streams attitude and
 //! position); physics integrates at [`PHYSICS_DT_S`] inside a tick. Each tick, in lockstep:
@@ -21,26 +21,18 @@ use crate::tractor::{PathKind, Tractor, TractorParams};
 use crate::vehicle::{Multirotor, VehicleParams};
 use crate::wind::{Wind, WindConfig};
 use nalgebra::Vector3;
+use runtime::camera_source::{CapturedFrame, MemorySource};
 use runtime::clock::Timestamp;
 use runtime::energy::MissionModel;
-use runtime::governor::{companion_power_w, Governor, GovernorEvent};
-use runtime::link::{FailsafeAction, LinkConfig, LinkStatus, MavlinkLink};
-use runtime::mission::{
-    AutopilotView, MissionEvent, MissionPlan, MissionSequencer, SequencerInput,
-};
+use runtime::link::{LinkConfig, MavlinkLink};
+use runtime::mission::runner::LOCKSTEP_TIMEOUT;
+use runtime::mission::{MissionEvent, MissionPlan, MissionRunner, RunnerError, RunnerOptions};
 use runtime::registry::PluginRegistry;
-use runtime::scheduler::{SchedulerBuilder, VirtualScheduler};
-use runtime::telemetry::MissionProgress;
+use runtime::scheduler::SchedulerBuilder;
 use runtime::topics::{
-    CameraFrame, DepthFrame, HazardReport, LandingSetpoint, MissionPhase, RelativeState,
-    VehicleState, CAMERA_FRAME, DEPTH_FRAME, HAZARDS, LANDING_SETPOINT, MISSION_PHASE,
-    RELATIVE_STATE, VEHICLE_STATE,
+    DepthFrame, HazardReport, RelativeState, DEPTH_FRAME, HAZARDS, RELATIVE_STATE,
 };
-use std::sync::Arc;
-use std::time::{Duration, Instant};
-
-/// How long either end of the lockstep waits for the other before giving up (wall clock).
-const LOCKSTEP_TIMEOUT: Duration = Duration::from_secs(5);
+use std::time::Instant;
 
 /// One lockstep tick.
 pub const TICK_S: f64 = 0.02;
@@ -164,11 +156,7 @@ pub fn simulate(
             ));
         }
     }
-    let mut scheduler = builder.build_virtual()?;
-    let mut governor = Governor::from_mission(model, config.governor.clone().unwrap_or_default())
-        .map_err(|e| setup(&e))?;
-    let fixed = resolve_fixed_levels(model, &options.fixed_levels)?;
-    let problem = governor.problem().clone();
+    let scheduler = builder.build_virtual()?;
 
     // The world.
     let pad_height_m = TractorParams::default().pad_height_m;
@@ -229,7 +217,7 @@ pub fn simulate(
 
     // MAVLink over the loopback, as with PX4 SITL: the autopilot sends to the runtime's port.
     let link_error = |e: &dyn std::fmt::Display| SimError::Link(e.to_string());
-    let mut link =
+    let link =
         MavlinkLink::bind_local_ephemeral(LinkConfig::default()).map_err(|e| link_error(&e))?;
     let runtime_addr = link
         .local_addr()
@@ -237,7 +225,7 @@ pub fn simulate(
     let mut autopilot =
         MavlinkAutopilot::bind_local(runtime_addr, true).map_err(|e| link_error(&e))?;
 
-    let plan = mission_plan(model, options, meeting, pad_height_m);
+    let plan = mission_plan(model, meeting, pad_height_m);
     let max_time_s = options.max_time_s.unwrap_or_else(|| {
         let phases = &model.config.mission.phases;
         let count = plan.phase_durations_s.len();
@@ -251,20 +239,24 @@ pub fn simulate(
         let landing_s = phases.last().map_or(0.0, |p| p.duration_s);
         middle_s + landing_s + TIME_MARGIN_S
     });
-    let mut sequencer = MissionSequencer::new(plan);
     let bus = scheduler.bus().clone();
-    let frames = bus
-        .publisher::<CameraFrame>(CAMERA_FRAME)
-        .map_err(|e| setup(&e))?;
-    let vehicle_topic = bus
-        .publisher::<VehicleState>(VEHICLE_STATE)
-        .map_err(|e| setup(&e))?;
-    let phase_topic = bus
-        .publisher::<MissionPhase>(MISSION_PHASE)
-        .map_err(|e| setup(&e))?;
-    let mut setpoints = bus
-        .subscriber::<LandingSetpoint>(LANDING_SETPOINT)
-        .map_err(|e| setup(&e))?;
+    // The camera's frames reach the runtime as a real camera's do: through a frame source.
+    let frames = MemorySource::new();
+    let mut runner = MissionRunner::new(
+        model.clone(),
+        scheduler,
+        link,
+        plan,
+        Some(Box::new(frames.clone())),
+        RunnerOptions {
+            landing_target: false,
+            fixed_levels: options.fixed_levels.clone(),
+        },
+    )
+    .map_err(|error| match error {
+        RunnerError::FixedLevel { task, value, why } => SimError::FixedLevel { task, value, why },
+        other => SimError::Setup(other.to_string()),
+    })?;
     // The tasks that look at camera frames: a frame is rendered only when one will.
     let camera_consumers: Vec<String> = config
         .tasks
@@ -302,22 +294,17 @@ pub fn simulate(
     let mut hazard_score = HazardScore::default();
     let mut hazard_backend: Option<&'static str> = None;
 
-    apply_levels(&mut scheduler, model, &governor, &fixed)?;
-    scheduler.start()?;
-
-    let mut qos_changes = Vec::new();
     let mut events: Vec<(f64, String)> = Vec::new();
     let mut track = Vec::new();
-    let mut published_phase: Option<usize> = None;
     let mut landing_started_s: Option<f64> = None;
     let mut tracking_started_s: Option<f64> = None;
-    let mut land_now: Option<&'static str> = None;
     let mut landing_aborts = 0u32;
     let mut last_landing_mode = None;
     let mut tractor_moving = false;
     let mut next_track_s = 0.0;
     let mut tick = 0u64;
     let mut finished_s = None;
+    let phase_count = config.mission.phases.len();
     loop {
         let time_s = tick as f64 * TICK_S;
         let now = Timestamp::from_nanos(MavlinkAutopilot::time_ns(time_s));
@@ -332,46 +319,11 @@ pub fn simulate(
         let in_window = |window: Option<(f64, f64)>| matches!((window, fault_time), (Some((from, until)), Some(t)) if t >= from && t < until);
         autopilot.set_link_down(in_window(options.faults.link_loss));
 
-        // Autopilot → runtime.
-        let snapshot = vehicle.snapshot(time_s, battery.reading());
-        let t_ns = autopilot.publish(&snapshot).map_err(|e| link_error(&e))?;
-        let update = link
-            .poll_lockstep(t_ns, LOCKSTEP_TIMEOUT)
-            .map_err(|e| link_error(&e))?;
-        if link.failsafe_action() == FailsafeAction::HoldThenReenter {
-            link.recover().map_err(|e| link_error(&e))?;
-        }
-        if let Some(state) = update.vehicle_state {
-            vehicle_topic.publish(now, state);
-        }
-        if let Some(sample) = update.battery {
-            let progress = sequencer
-                .status()
-                .phase
-                .map_or(MissionProgress::start(), |p| {
-                    MissionProgress::new(p, time_s - sequencer.status().phase_started_s)
-                });
-            match governor.update(&sample, progress) {
-                Ok(decisions) => {
-                    for event in decisions {
-                        if let GovernorEvent::LandNow(_) = &event {
-                            land_now = Some("the battery cannot reach the end of the mission");
-                        }
-                        qos_changes.push(QosChange {
-                            time_s,
-                            description: event.describe(&model.config.tasks),
-                        });
-                    }
-                    apply_levels(&mut scheduler, model, &governor, &fixed)?;
-                }
-                Err(error) => events.push((time_s, format!("telemetry refused: {error}"))),
-            }
-        }
-
         // The camera renders only what the detector will look at before the next frame.
         if camera.is_due(time_s) {
             let wanted = camera_consumers.iter().any(|name| {
-                scheduler
+                runner
+                    .scheduler()
                     .next_activation(name)
                     .is_some_and(|next| next.as_secs_f64() < time_s + camera_period_s)
             });
@@ -388,7 +340,10 @@ pub fn simulate(
                 match camera.capture_frame(time_s, &pose, &scene) {
                     Ok(frame) => {
                         let frame_index = frame.frame_index;
-                        frames.publish(now, frame);
+                        frames.push(CapturedFrame {
+                            frame,
+                            capture_time_s: now.as_secs_f64(),
+                        });
                         if let Some((stereo, depth_frames)) = stereo.as_mut() {
                             match stereo.capture(
                                 frame_index,
@@ -410,8 +365,24 @@ pub fn simulate(
             }
         }
 
-        // The runtime's tasks up to now.
-        scheduler.run_until(now)?;
+        // Autopilot → runtime → autopilot, in lockstep.
+        let snapshot = vehicle.snapshot(time_s, battery.reading());
+        let t_ns = autopilot.publish(&snapshot).map_err(|e| link_error(&e))?;
+        let step = runner
+            .step(now.as_secs_f64(), Some(t_ns))
+            .map_err(|e| link_error(&e))?;
+        let received = autopilot
+            .receive_lockstep(t_ns, LOCKSTEP_TIMEOUT)
+            .map_err(|e| link_error(&e))?;
+        for received in received {
+            let result = vehicle.command(received.command, time_s);
+            if let Some(pending) = received.ack {
+                autopilot
+                    .ack(pending, &result)
+                    .map_err(|e| link_error(&e))?;
+            }
+        }
+
         // Where the runtime thinks the pad is, against the truth, while it tracks it.
         if tracking_started_s.is_some() && vehicle.touchdown().is_none() {
             if let Some(message) = relative_states.latest() {
@@ -437,11 +408,7 @@ pub fn simulate(
             hazard_score.add(scene.hazards(), &report.value);
             hazard_backend = Some(report.value.backend);
         }
-        let landing = setpoints
-            .latest()
-            .filter(|m| time_s - m.stamp.as_secs_f64() <= 0.5)
-            .map(|m| m.value);
-        if let Some(setpoint) = landing {
+        if let Some(setpoint) = step.landing {
             use algorithms::control::landing::LandingMode;
             if setpoint.mode == LandingMode::Reacquire
                 && last_landing_mode != Some(LandingMode::Reacquire)
@@ -451,29 +418,10 @@ pub fn simulate(
             }
             last_landing_mode = Some(setpoint.mode);
         }
-
-        // The sequencer → runtime → autopilot.
-        let telemetry = link.telemetry();
-        let view = match (telemetry.autopilot(), telemetry.position_ned_m()) {
-            (Some(status), Some(position_ned_m)) => Some(AutopilotView {
-                armed: status.armed,
-                mode: status.mode,
-                landed: telemetry.vehicle_state(time_s).is_some_and(|s| s.landed),
-                position_ned_m,
-            }),
-            _ => None,
-        };
-        let (commands, mission_events) = sequencer.step(&SequencerInput {
-            time_s,
-            link_up: update.status == LinkStatus::Connected,
-            autopilot: view,
-            landing,
-            land_now,
-        });
-        for event in mission_events {
-            if let MissionEvent::PhaseStarted { phase, .. } = &event {
+        for event in &step.events {
+            if let MissionEvent::PhaseStarted { phase, .. } = event {
                 // The sequencer's last phase is the landing.
-                if *phase + 1 == config.mission.phases.len() {
+                if *phase + 1 == phase_count {
                     landing_started_s = Some(time_s);
                 }
                 if *phase == 1 {
@@ -482,40 +430,11 @@ pub fn simulate(
                         camera.freeze(time_s + from_s, time_s + until_s);
                     }
                 }
-            }
-            events.push((time_s, describe_mission(&event)));
-        }
-        let status = sequencer.status();
-        if status.phase != published_phase {
-            if let Some(index) = status.phase {
-                phase_topic.publish(
-                    now,
-                    MissionPhase {
-                        index,
-                        name: Arc::from(config.mission.phases[index].name.as_str()),
-                    },
-                );
-                apply_levels(&mut scheduler, model, &governor, &fixed)?;
                 // The tractor drives off once the vehicle is with it.
-                tractor_moving |= index >= 1;
-            }
-            published_phase = status.phase;
-        }
-        for command in &commands {
-            link.send(command).map_err(|e| link_error(&e))?;
-        }
-        link.end_tick(t_ns).map_err(|e| link_error(&e))?;
-        let received = autopilot
-            .receive_lockstep(t_ns, LOCKSTEP_TIMEOUT)
-            .map_err(|e| link_error(&e))?;
-        for received in received {
-            let result = vehicle.command(received.command, time_s);
-            if let Some(pending) = received.ack {
-                autopilot
-                    .ack(pending, &result)
-                    .map_err(|e| link_error(&e))?;
+                tractor_moving |= *phase >= 1;
             }
         }
+        let status = runner.status();
         if status.finished && finished_s.is_none() {
             finished_s = Some(time_s);
         }
@@ -546,9 +465,8 @@ pub fn simulate(
         } else {
             0.0
         };
-        let phase = status.phase.unwrap_or(0);
-        let levels = effective_levels(&governor, &fixed, phase);
-        let companion_w = companion_power_w(&problem, phase, &levels).unwrap_or(0.0);
+        // The companion draws what the tasks of the phase in flight cost at their levels.
+        let companion_w = runner.companion_power_w();
         if let Err(error) = battery.drain(flight_w, companion_w, TICK_S) {
             events.push((time_s, format!("battery: {error}")));
             break;
@@ -572,18 +490,33 @@ pub fn simulate(
         tick += 1;
     }
     let end_s = tick as f64 * TICK_S;
-    scheduler.stop();
-    let failed_tasks = scheduler
+    runner.stop();
+    let stats = runner.scheduler().stats();
+    let failed_tasks = runner
+        .scheduler()
         .failed_tasks()
         .into_iter()
         .map(|name| {
-            let error = scheduler
-                .task_stats(&name)
-                .and_then(|stats| stats.last_error)
+            let error = stats
+                .iter()
+                .find(|s| s.name == name)
+                .and_then(|s| s.last_error.clone())
                 .unwrap_or_default();
             format!("{name}: {error}")
         })
         .collect();
+    let log = runner.log();
+    let qos_changes = log
+        .governor
+        .iter()
+        .map(|decision| QosChange {
+            time_s: decision.time_s,
+            description: decision.description.clone(),
+        })
+        .collect();
+    // The runtime's log (mission events, refused telemetry, camera faults) beside the world's.
+    events.extend(log.events.iter().cloned());
+    events.sort_by(|a, b| a.0.total_cmp(&b.0));
     let touchdown = vehicle.touchdown();
     let (flight_energy_wh, companion_energy_wh) = battery.energy_wh();
     let wall_s = wall_start.elapsed().as_secs_f64();
@@ -619,88 +552,15 @@ pub fn simulate(
     })
 }
 
-/// `(task index, level index)` for every `--fix TASK=VALUE`.
-fn resolve_fixed_levels(
-    model: &MissionModel,
-    fixed: &[(String, f64)],
-) -> Result<Vec<(usize, usize)>, SimError> {
-    fixed
-        .iter()
-        .map(|(name, value)| {
-            let error = |why: String| SimError::FixedLevel {
-                task: name.clone(),
-                value: *value,
-                why,
-            };
-            let tasks = &model.config.tasks;
-            let task = tasks.iter().position(|t| &t.name == name).ok_or_else(|| {
-                let known: Vec<&str> = tasks.iter().map(|t| t.name.as_str()).collect();
-                error(format!("no such task; the tasks are {}", known.join(", ")))
-            })?;
-            let levels = &tasks[task].levels;
-            let level = levels
-                .iter()
-                .position(|v| (v - value).abs() <= 1e-9 * v.abs().max(1.0))
-                .ok_or_else(|| error(format!("not one of the task's levels {levels:?}")))?;
-            Ok((task, level))
-        })
-        .collect()
-}
-
-/// The governor's levels for `phase` with the fixed ones put in.
-fn effective_levels(
-    governor: &Governor,
-    fixed: &[(usize, usize)],
-    phase: usize,
-) -> Vec<power_models::planner::TaskLevel> {
-    let mut levels = governor
-        .phase_levels(phase)
-        .map(<[_]>::to_vec)
-        .unwrap_or_default();
-    for level in &mut levels {
-        if let Some(&(_, fixed_level)) = fixed.iter().find(|(task, _)| *task == level.task) {
-            level.level = fixed_level;
-        }
-    }
-    levels
-}
-
-/// Sets every scheduled task to the level in force: fixed, else the governor's.
-fn apply_levels(
-    scheduler: &mut VirtualScheduler,
-    model: &MissionModel,
-    governor: &Governor,
-    fixed: &[(usize, usize)],
-) -> Result<(), SimError> {
-    let mut wanted: Vec<(usize, usize)> = governor
-        .current_levels()
-        .iter()
-        .map(|l| (l.task, l.level))
-        .collect();
-    for &(task, level) in fixed {
-        match wanted.iter_mut().find(|(t, _)| *t == task) {
-            Some(entry) => entry.1 = level,
-            None => wanted.push((task, level)),
-        }
-    }
-    for (task, level) in wanted {
-        let name = &model.config.tasks[task].name;
-        if let Some(current) = scheduler.level(name) {
-            if current != level {
-                scheduler.set_level(name, level)?;
-            }
-        }
-    }
-    Ok(())
-}
-
 /// The camera the tracker's params describe (field of view and image size: the
 /// `kalman_tracker`'s, else the `hybrid_tracking`'s), at 10 fps like the seed's.
 fn camera_config(model: &MissionModel) -> SimCameraConfig {
     let mut config = SimCameraConfig::default();
     let number = |key| {
-        plugin_number(model, "kalman_tracker", key)
-            .or_else(|| plugin_number(model, "hybrid_tracking", key))
+        let config = &model.config;
+        config
+            .plugin_number("kalman_tracker", key)
+            .or_else(|| config.plugin_number("hybrid_tracking", key))
     };
     if let Some(fov) = number("camera_horizontal_fov_deg") {
         config.horizontal_fov_deg = fov;
@@ -714,38 +574,11 @@ fn camera_config(model: &MissionModel) -> SimCameraConfig {
     config
 }
 
-/// A number from the `[task.params]` of the first task running `plugin`; TOML integers count,
-/// as they do for the plugins' own parsing.
-fn plugin_number(model: &MissionModel, plugin: &str, key: &str) -> Option<f64> {
-    let task = model.config.tasks.iter().find(|t| t.plugin == plugin)?;
-    let value = task.params.get(key)?;
-    value.as_float().or(value.as_integer().map(|i| i as f64))
-}
-
-/// The sequencer's plan from the config: phases, the follow height (the landing task's IH
-/// above the pad), the meeting point.
-fn mission_plan(
-    model: &MissionModel,
-    options: &SimOptions,
-    meeting: [f64; 2],
-    pad_height_m: f64,
-) -> MissionPlan {
-    let phases = &model.config.mission.phases;
-    let durations = phases
-        .iter()
-        .enumerate()
-        .map(|(i, phase)| {
-            let middle = i > 0 && i + 1 < phases.len();
-            match options.tracking_s {
-                Some(s) if middle => s,
-                _ => phase.duration_s,
-            }
-        })
-        .collect();
-    let initial_altitude_m = plugin_number(model, "landing_guidance", "initial_altitude_m")
-        .unwrap_or(algorithms::control::landing::LandingConfig::default().initial_height_m);
-    let mut plan = MissionPlan::new(phases.iter().map(|p| p.name.clone()).collect(), durations);
-    plan.cruise_altitude_m = initial_altitude_m + pad_height_m;
+/// The sequencer's plan from the config (its tracking time already the one to fly), with the
+/// simulated world's meeting point and pad height.
+fn mission_plan(model: &MissionModel, meeting: [f64; 2], pad_height_m: f64) -> MissionPlan {
+    let mut plan = MissionPlan::for_mission(&model.config);
+    plan.cruise_altitude_m += pad_height_m;
     plan.meeting_point_ne_m = meeting;
     plan
 }
@@ -808,19 +641,5 @@ fn pad_pose(tractor: &Tractor) -> PadPose {
         east_m: pad.centre_ned_m.y,
         height_m: -pad.centre_ned_m.z,
         yaw_rad: pad.yaw_rad,
-    }
-}
-
-fn describe_mission(event: &MissionEvent) -> String {
-    match event {
-        MissionEvent::Armed => "armed".into(),
-        MissionEvent::TookOff => "took off".into(),
-        MissionEvent::OffboardEngaged => "offboard engaged".into(),
-        MissionEvent::PhaseStarted { name, .. } => format!("phase {name} started"),
-        MissionEvent::LinkLost => "MAVLink link lost: failsafe (autopilot holds)".into(),
-        MissionEvent::LinkRestored => "MAVLink link restored".into(),
-        MissionEvent::LandNow { reason } => format!("land now: {reason}"),
-        MissionEvent::Touchdown => "touchdown".into(),
-        MissionEvent::Aborted { reason } => format!("mission aborted: {reason}"),
     }
 }

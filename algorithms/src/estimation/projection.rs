@@ -194,6 +194,16 @@ impl Attitude {
         }
     }
 
+    /// The body FRD → NED rotation (ZYX: yaw, then pitch, then roll).
+    pub fn body_to_ned(&self) -> nalgebra::Rotation3<f64> {
+        nalgebra::Rotation3::from_euler_angles(self.roll_rad, self.pitch_rad, self.yaw_rad)
+    }
+
+    /// A NED vector in the body's FRD frame.
+    pub fn ned_to_body_frd(&self, ned: &Vector3<f64>) -> Vector3<f64> {
+        self.body_to_ned().inverse() * ned
+    }
+
     fn check(&self) -> Result<(), ProjectionError> {
         if [self.roll_rad, self.pitch_rad, self.yaw_rad]
             .iter()
@@ -286,6 +296,30 @@ pub fn pad_centre_from_marker(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ned_to_body_frd_matches_the_elementary_rotations() {
+        // Yaw 90°: north is the body's left (−y), east its front (+x).
+        let yawed = Attitude::new(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        let north = yawed.ned_to_body_frd(&Vector3::new(1.0, 0.0, 0.0));
+        assert!(
+            (north - Vector3::new(0.0, -1.0, 0.0)).norm() < 1e-12,
+            "{north}"
+        );
+        // Nose up 30°: the down axis tilts forward, so the point straight below lies behind (−x).
+        let pitch = 30f64.to_radians();
+        let pitched = Attitude::new(0.0, pitch, 0.0);
+        let below = pitched.ned_to_body_frd(&Vector3::new(0.0, 0.0, 1.0));
+        assert!((below - Vector3::new(-pitch.sin(), 0.0, pitch.cos())).norm() < 1e-12);
+        // Right wing down 20°: the point straight below lies to the right (+y).
+        let roll = 20f64.to_radians();
+        let rolled = Attitude::new(roll, 0.0, 0.0);
+        let below = rolled.ned_to_body_frd(&Vector3::new(0.0, 0.0, 1.0));
+        assert!(
+            (below - Vector3::new(0.0, roll.sin(), roll.cos())).norm() < 1e-12,
+            "{below}"
+        );
+    }
     use crate::vision::camera::RadialTangential;
     use crate::vision::render::true_pixel;
     use nalgebra::{Matrix3, Point3};

@@ -4,6 +4,7 @@
 
 use super::suggest::did_you_mean;
 use super::validate::{validate, PathSegment};
+use super::LinkSettings;
 use super::{Battery, Flight, Mission, MissionConfig, PowerModelConfig, TaskConfig};
 use crate::catalog::PluginCatalog;
 use crate::diagnostic::{Diagnostic, FileReport};
@@ -14,13 +15,14 @@ use std::path::{Path, PathBuf};
 use toml::de::{DeTable, DeValue, ValueDeserializer};
 use toml::Spanned;
 
-const SECTIONS: [&str; 6] = [
+const SECTIONS: [&str; 7] = [
     "mission",
     "battery",
     "flight",
     "power_model",
     "task",
     "governor",
+    "link",
 ];
 
 /// A config that passed every check.
@@ -174,7 +176,7 @@ fn deserialize_sections(
             diagnostics.push(Diagnostic::error(
                 Some(key.span()),
                 format!(
-                    "unknown section `{key_name}`{}; expected one of: [mission], [battery], [flight], [power_model], [[task]], [governor]",
+                    "unknown section `{key_name}`{}; expected one of: [mission], [battery], [flight], [power_model], [[task]], [governor], [link]",
                     did_you_mean(key_name, SECTIONS)
                 ),
             ));
@@ -190,6 +192,11 @@ fn deserialize_sections(
         None => Some(None),
         Some(_) => section::<GovernorConfig>(root, "governor", diagnostics).map(Some),
     };
+    // So is the link's: absent means no signing and the default streams.
+    let link = match root.get("link") {
+        None => Some(None),
+        Some(_) => section::<LinkSettings>(root, "link", diagnostics).map(Some),
+    };
     Some(MissionConfig {
         mission: mission?,
         battery: battery?,
@@ -197,6 +204,7 @@ fn deserialize_sections(
         power_model: power_model?,
         tasks: tasks?,
         governor: governor?,
+        link: link?,
     })
 }
 

@@ -34,6 +34,22 @@ pub struct MissionConfig {
     /// In-flight re-planning; every key has a default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub governor: Option<crate::governor::GovernorConfig>,
+    /// The MAVLink link to the autopilot (`qosrt run`); every key has a default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub link: Option<LinkSettings>,
+}
+
+/// `[link]`: how `qosrt run` speaks to the autopilot.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LinkSettings {
+    /// MAVLink 2 signing key: a file of 32 bytes, raw or as 64 hex digits (relative to the
+    /// config's folder). With it, unsigned messages are refused and what qosrt sends is signed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub signing_key_file: Option<std::path::PathBuf>,
+    /// Send LANDING_TARGET from the tracker for the autopilot's own precision landing.
+    #[serde(default)]
+    pub landing_target: bool,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -259,6 +275,14 @@ impl TaskConfig {
 }
 
 impl MissionConfig {
+    /// A number from the `[task.params]` of the first task running `plugin`; TOML integers
+    /// count, as they do for the plugins' own parsing.
+    pub fn plugin_number(&self, plugin: &str, key: &str) -> Option<f64> {
+        let task = self.tasks.iter().find(|t| t.plugin == plugin)?;
+        let value = task.params.get(key)?;
+        value.as_float().or(value.as_integer().map(|i| i as f64))
+    }
+
     pub fn task(&self, name: &str) -> Option<&TaskConfig> {
         self.tasks.iter().find(|task| task.name == name)
     }

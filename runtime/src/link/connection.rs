@@ -13,7 +13,7 @@
 use super::LinkError;
 use mavlink::dialects::common::MavMessage;
 use mavlink::error::MessageReadError;
-use mavlink::{MavConnection, MavHeader, MavlinkVersion};
+use mavlink::{MavConnection, MavHeader, MavlinkVersion, SigningConfig, SigningData};
 use std::fmt;
 use std::io::{self, ErrorKind};
 use std::net::{SocketAddr, ToSocketAddrs, UdpSocket};
@@ -147,18 +147,26 @@ impl ConnectionSpec {
         }
     }
 
-    /// Opens the connection (MAVLink 2).
-    pub fn open(&self) -> Result<Transport, LinkError> {
+    /// Opens the connection (MAVLink 2), signing what it sends and checking what it receives
+    /// when a signing key is given.
+    pub fn open(&self, signing_key: Option<[u8; 32]>) -> Result<Transport, LinkError> {
         let opened = match self {
             Self::UdpIn { host, port } => UdpTransport::listen(&(host.as_str(), *port)),
             Self::UdpOut { host, port } => UdpTransport::send_to(&(host.as_str(), *port)),
             Self::TcpOut { .. } | Self::Serial { .. } => {
                 mavlink::connect::<MavMessage>(&self.to_string()).map(|mut connection| {
                     connection.set_protocol_version(MavlinkVersion::V2);
+                    connection.setup_signing(signing_key.map(signing_config));
                     Transport::Stream(Box::new(connection))
                 })
             }
         };
+        let opened = opened.map(|mut transport| {
+            if let (Transport::Udp(udp), Some(key)) = (&mut transport, signing_key) {
+                udp.signing = Some(SigningData::from_config(signing_config(key)));
+            }
+            transport
+        });
         opened.map_err(|source| LinkError::Open {
             spec: self.to_string(),
             source,
@@ -179,12 +187,19 @@ fn parse_port(port: &str, zero_allowed: bool) -> Result<u16, String> {
     Ok(value as u16)
 }
 
+/// The signing of a link: sign what goes out (link id 0), accept only signed MAVLink 2.
+fn signing_config(key: [u8; 32]) -> SigningConfig {
+    SigningConfig::new(key, 0, true, false)
+}
+
 /// One batch from a transport.
 #[derive(Debug, Default)]
 pub struct Incoming {
     pub messages: Vec<(MavHeader, MavMessage)>,
     /// A datagram (UDP) or frame (stream) that held no valid MAVLink message.
     pub malformed: bool,
+    /// Messages refused for a missing or wrong signature (UDP with a signing key).
+    pub unsigned: usize,
     /// The sender, for UDP.
     pub from: Option<SocketAddr>,
 }
@@ -270,6 +285,7 @@ pub struct UdpTransport {
     learns_peer: bool,
     buffer: Vec<u8>,
     encode_buffer: Vec<u8>,
+    signing: Option<SigningData>,
 }
 
 impl UdpTransport {
@@ -299,6 +315,7 @@ impl UdpTransport {
             learns_peer,
             buffer: vec![0; 65_536],
             encode_buffer: Vec::with_capacity(300),
+            signing: None,
         }
     }
 
@@ -326,10 +343,22 @@ impl UdpTransport {
             Err(error) if error.kind() == ErrorKind::ConnectionRefused => return Ok(None),
             Err(error) => return Err(error),
         };
-        let messages = decode_datagram(&self.buffer[..length]);
+        let datagram = &self.buffer[..length];
+        let messages = decode_datagram(datagram);
+        let Some(signing) = &self.signing else {
+            return Ok(Some(Incoming {
+                malformed: messages.is_empty(),
+                messages,
+                from: Some(from),
+                unsigned: 0,
+            }));
+        };
+        // Valid frames whose signature does not check out are counted apart from garbage.
+        let signed = decode_datagram_signed(datagram, signing);
         Ok(Some(Incoming {
             malformed: messages.is_empty(),
-            messages,
+            unsigned: messages.len().saturating_sub(signed.len()),
+            messages: signed,
             from: Some(from),
         }))
     }
@@ -339,8 +368,14 @@ impl UdpTransport {
             return Ok(false);
         };
         self.encode_buffer.clear();
-        mavlink::write_versioned_msg(&mut self.encode_buffer, MavlinkVersion::V2, header, message)
-            .map_err(|error| io::Error::other(error.to_string()))?;
+        mavlink::write_versioned_msg_signed(
+            &mut self.encode_buffer,
+            MavlinkVersion::V2,
+            header,
+            message,
+            self.signing.as_ref(),
+        )
+        .map_err(|error| io::Error::other(error.to_string()))?;
         match self.socket.send_to(&self.encode_buffer, peer) {
             Ok(_) => Ok(true),
             // Nobody listening (yet): UDP drops it, as a radio would.
@@ -352,11 +387,23 @@ impl UdpTransport {
 
 /// Every CRC-valid MAVLink 1 or 2 message in one datagram; garbage between frames is skipped.
 pub fn decode_datagram(datagram: &[u8]) -> Vec<(MavHeader, MavMessage)> {
+    decode_with(datagram, None)
+}
+
+/// The messages of a datagram whose MAVLink 2 signature checks out with `signing`.
+pub fn decode_datagram_signed(
+    datagram: &[u8],
+    signing: &SigningData,
+) -> Vec<(MavHeader, MavMessage)> {
+    decode_with(datagram, Some(signing))
+}
+
+fn decode_with(datagram: &[u8], signing: Option<&SigningData>) -> Vec<(MavHeader, MavMessage)> {
     let mut reader = mavlink::MavlinkReader::new(datagram);
     let mut messages = Vec::new();
     // Every frame is at least 8 bytes, so this bounds the loop even if the reader misbehaves.
     for _ in 0..=datagram.len() / 8 {
-        match reader.read_any_message::<MavMessage>() {
+        match reader.read_any_message_signed::<MavMessage>(signing) {
             Ok(message) => messages.push(message),
             // An unknown id or a bad enum value: that frame is skipped, the rest still read.
             Err(MessageReadError::Parse(_)) => {}
@@ -488,7 +535,7 @@ mod tests {
     fn opens_udp_on_an_os_chosen_port() {
         let transport = ConnectionSpec::parse("udpin:127.0.0.1:0")
             .unwrap()
-            .open()
+            .open(None)
             .unwrap();
         assert_ne!(transport.local_addr().unwrap().port(), 0);
     }

@@ -29,7 +29,7 @@ use super::LinkError;
 use crate::telemetry::BatteryTelemetry;
 use crate::topics::VehicleState;
 use mavlink::dialects::common::{MavMessage, TIMESYNC_DATA};
-use mavlink::MavHeader;
+use mavlink::{MavHeader, Message};
 use nalgebra::Vector3;
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
@@ -50,9 +50,12 @@ pub struct LinkConfig {
     pub system_id: u8,
     /// MAV_COMP_ID_ONBOARD_COMPUTER.
     pub component_id: u8,
-    /// The autopilot's ids: telemetry from anyone else is ignored.
-    pub target_system_id: u8,
+    /// The autopilot's system id; `None` learns it from the first autopilot HEARTBEAT (PX4
+    /// SITL instance i is system i + 1). Telemetry from anyone else is ignored.
+    pub target_system_id: Option<u8>,
     pub target_component_id: u8,
+    /// MAVLink 2 signing: sign what is sent, refuse what is not signed with this key.
+    pub signing_key: Option<[u8; 32]>,
 }
 
 impl Default for LinkConfig {
@@ -63,8 +66,9 @@ impl Default for LinkConfig {
             heartbeat_period_s: 1.0,
             system_id: 1,
             component_id: super::mapping::ONBOARD_COMPUTER_COMPONENT_ID,
-            target_system_id: 1,
+            target_system_id: None,
             target_component_id: 1,
+            signing_key: None,
         }
     }
 }
@@ -102,6 +106,8 @@ pub struct LinkStats {
     pub malformed: u64,
     /// Messages from systems or components other than the autopilot.
     pub ignored: u64,
+    /// Messages refused for a missing or wrong signature (signing on).
+    pub unsigned: u64,
     pub messages_sent: u64,
     /// Messages not sent because no autopilot address is known yet (udpin).
     pub unsent_no_peer: u64,
@@ -151,6 +157,8 @@ pub struct MavlinkLink {
     sequence: u8,
     autopilot_kind: AutopilotKind,
     stats: LinkStats,
+    /// Messages from the autopilot, by MAVLink message name.
+    received_by_type: std::collections::BTreeMap<&'static str, u64>,
 }
 
 impl MavlinkLink {
@@ -161,7 +169,7 @@ impl MavlinkLink {
     }
 
     pub fn open(spec: &ConnectionSpec, config: LinkConfig) -> Result<Self, LinkError> {
-        Ok(Self::with_transport(spec.open()?, config))
+        Ok(Self::with_transport(spec.open(config.signing_key)?, config))
     }
 
     /// `udpin` on 127.0.0.1 with an OS-chosen port, for the simulator: give
@@ -191,6 +199,7 @@ impl MavlinkLink {
             sequence: 0,
             autopilot_kind: AutopilotKind::Px4,
             stats: LinkStats::default(),
+            received_by_type: std::collections::BTreeMap::new(),
         }
     }
 
@@ -209,6 +218,11 @@ impl MavlinkLink {
 
     pub fn stats(&self) -> LinkStats {
         self.stats
+    }
+
+    /// Messages received from the autopilot, by MAVLink message name.
+    pub fn received_by_type(&self) -> &std::collections::BTreeMap<&'static str, u64> {
+        &self.received_by_type
     }
 
     /// Everything the autopilot reported so far.
@@ -279,6 +293,7 @@ impl MavlinkLink {
         let message = MavMessage::TIMESYNC(TIMESYNC_DATA {
             tc1: t_ns.max(1) as i64,
             ts1: t_ns as i64,
+            ..Default::default()
         });
         self.send_message(&message)?;
         Ok(())
@@ -292,9 +307,10 @@ impl MavlinkLink {
             return Ok(Sent::Suppressed);
         }
         let target = CommandTarget {
-            system_id: self.config.target_system_id,
+            system_id: self.config.target_system_id.unwrap_or(1),
             component_id: self.config.target_component_id,
             kind: self.autopilot_kind,
+            home_amsl_m: self.telemetry.home_amsl_m(),
         };
         let time_boot_ms = (self.now_s.max(0.0) * 1000.0) as u32;
         let message = command_message(command, &target, time_boot_ms);
@@ -347,6 +363,7 @@ impl MavlinkLink {
         update: &mut LinkUpdate,
         lockstep: Option<u64>,
     ) -> Option<u64> {
+        self.stats.unsigned += incoming.unsigned as u64;
         if incoming.malformed {
             self.stats.malformed += 1;
             update.malformed += 1;
@@ -355,7 +372,20 @@ impl MavlinkLink {
         let mut barrier = None;
         let mut from_autopilot = false;
         for (header, message) in incoming.messages {
-            if u32::from(self.config.target_system_id) != header.system_id
+            if self.config.target_system_id.is_none()
+                && header.component_id == self.config.target_component_id
+            {
+                if let MavMessage::HEARTBEAT(heartbeat) = &message {
+                    if super::mapping::decode_heartbeat(heartbeat).is_some() {
+                        // The companion shares the vehicle's system id.
+                        let system_id = header.system_id as u8;
+                        tracing::info!(system_id, "autopilot found");
+                        self.config.target_system_id = Some(system_id);
+                        self.config.system_id = system_id;
+                    }
+                }
+            }
+            if self.config.target_system_id.map(u32::from) != Some(header.system_id)
                 || self.config.target_component_id != header.component_id
             {
                 self.stats.ignored += 1;
@@ -363,15 +393,22 @@ impl MavlinkLink {
             }
             from_autopilot = true;
             self.stats.messages_received += 1;
+            *self
+                .received_by_type
+                .entry(message.message_name())
+                .or_default() += 1;
             update.messages += 1;
             if let MavMessage::TIMESYNC(timesync) = &message {
                 if timesync.tc1 == 0 {
                     if lockstep.is_some() {
                         barrier = Some(timesync.ts1.max(0) as u64);
                     } else {
+                        // Addressed to whoever asked (MAVLink 2's TIMESYNC extension).
                         let reply = MavMessage::TIMESYNC(TIMESYNC_DATA {
                             tc1: (self.now_s * 1e9) as i64,
                             ts1: timesync.ts1,
+                            target_system: header.system_id as u8,
+                            target_component: header.component_id,
                         });
                         if let Err(error) = self.send_message(&reply) {
                             tracing::warn!(%error, "TIMESYNC reply failed");
@@ -577,21 +614,31 @@ mod tests {
         };
         assert_eq!(heartbeat.mavtype, MavType::MAV_TYPE_ONBOARD_CONTROLLER);
         assert_eq!(heartbeat.autopilot, MavAutopilot::MAV_AUTOPILOT_INVALID);
-        autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: 0, ts1: 777 }));
+        autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: 0,
+            ts1: 777,
+            ..Default::default()
+        }));
         poll_until(&mut link, 2.5, |link| link.stats().messages_received == 2);
         let replies = autopilot.receive();
         assert_eq!(
             replies,
             vec![MavMessage::TIMESYNC(TIMESYNC_DATA {
                 tc1: 2_500_000_000,
-                ts1: 777
+                ts1: 777,
+                target_system: 1,
+                target_component: 1,
             })]
         );
     }
 
     #[test]
     fn telemetry_from_other_systems_is_ignored() {
-        let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+        let config = LinkConfig {
+            target_system_id: Some(1),
+            ..LinkConfig::default()
+        };
+        let mut link = MavlinkLink::bind_local_ephemeral(config).unwrap();
         let stranger = RawAutopilot::new(link.local_addr().unwrap(), 42);
         stranger.send(&px4_heartbeat());
         poll_until(&mut link, 0.0, |link| link.stats().ignored == 1);
@@ -623,8 +670,16 @@ mod tests {
     fn lockstep_barrier_from_the_future_is_an_error() {
         let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
         let autopilot = RawAutopilot::new(link.local_addr().unwrap(), 1);
-        autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: 0, ts1: 10 }));
-        autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA { tc1: 0, ts1: 30 }));
+        autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: 0,
+            ts1: 10,
+            ..Default::default()
+        }));
+        autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: 0,
+            ts1: 30,
+            ..Default::default()
+        }));
         let error = link.poll_lockstep(20, Duration::from_secs(1)).unwrap_err();
         assert!(matches!(
             error,
@@ -647,5 +702,127 @@ mod tests {
         }
         poll_until(&mut link, 0.0, |link| link.stats().malformed == 6);
         assert_eq!(link.stats().messages_received, 0);
+    }
+
+    #[test]
+    fn ten_thousand_random_truncated_and_mutated_datagrams_are_counted_not_fatal() {
+        use rand::{Rng, SeedableRng};
+        let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+        let vandal = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(16);
+        let mut valid = Vec::new();
+        mavlink::write_versioned_msg(
+            &mut valid,
+            MavlinkVersion::V2,
+            MavHeader {
+                system_id: 1,
+                component_id: 1,
+                sequence: 0,
+            },
+            &px4_heartbeat(),
+        )
+        .unwrap();
+        let to = link.local_addr().unwrap();
+        let mut sent = 0u64;
+        let mut polled = 0u64;
+        for k in 0..10_000 {
+            let datagram: Vec<u8> = match k % 3 {
+                // Random bytes, often starting like a MAVLink 2 frame.
+                0 => {
+                    let length = rng.random_range(1..400);
+                    let mut bytes: Vec<u8> = (0..length).map(|_| rng.random()).collect();
+                    if rng.random_bool(0.5) {
+                        bytes[0] = 0xfd;
+                    }
+                    bytes
+                }
+                // A valid frame cut short.
+                1 => valid[..rng.random_range(1..valid.len())].to_vec(),
+                // A valid frame with one byte changed after its start marker (CRC fails).
+                _ => {
+                    let mut bytes = valid.clone();
+                    let at = rng.random_range(1..bytes.len());
+                    bytes[at] ^= rng.random_range(1..=255u8);
+                    bytes
+                }
+            };
+            vandal.send_to(&datagram, to).unwrap();
+            sent += 1;
+            // Drain now and then so the socket buffer never overflows.
+            if k % 200 == 199 {
+                poll_until(&mut link, 0.0, |link| {
+                    link.stats().malformed + link.stats().messages_received >= sent
+                });
+                polled = sent;
+            }
+        }
+        poll_until(&mut link, 0.0, |link| {
+            link.stats().malformed + link.stats().messages_received >= sent
+        });
+        assert!(polled > 0);
+        let stats = link.stats();
+        // A mutated byte can land in a field the CRC covers only by chance: none get through as
+        // messages except by a CRC collision, which 10,000 tries do not make likely.
+        assert_eq!(stats.malformed + stats.messages_received, sent, "{stats:?}");
+        assert!(stats.malformed >= sent - 2, "{stats:?}");
+    }
+
+    #[test]
+    fn with_a_signing_key_unsigned_messages_are_refused_and_what_is_sent_is_signed() {
+        let key = [7u8; 32];
+        let config = LinkConfig {
+            signing_key: Some(key),
+            ..LinkConfig::default()
+        };
+        let mut link = MavlinkLink::bind_local_ephemeral(config).unwrap();
+        let autopilot = RawAutopilot::new(link.local_addr().unwrap(), 1);
+        // Unsigned: refused, counted.
+        autopilot.send(&px4_heartbeat());
+        poll_until(&mut link, 0.0, |link| link.stats().unsigned == 1);
+        assert!(link.telemetry().autopilot().is_none());
+        // Signed with another key: refused too.
+        let sign_with = |key: [u8; 32]| {
+            let signing =
+                mavlink::SigningData::from_config(mavlink::SigningConfig::new(key, 0, true, false));
+            let mut bytes = Vec::new();
+            mavlink::write_versioned_msg_signed(
+                &mut bytes,
+                MavlinkVersion::V2,
+                MavHeader {
+                    system_id: 1,
+                    component_id: 1,
+                    sequence: 0,
+                },
+                &px4_heartbeat(),
+                Some(&signing),
+            )
+            .unwrap();
+            bytes
+        };
+        autopilot
+            .socket
+            .send_to(&sign_with([9u8; 32]), autopilot.to)
+            .unwrap();
+        poll_until(&mut link, 0.0, |link| link.stats().unsigned == 2);
+        assert!(link.telemetry().autopilot().is_none());
+        // Signed with the key: accepted.
+        autopilot
+            .socket
+            .send_to(&sign_with(key), autopilot.to)
+            .unwrap();
+        poll_until(&mut link, 0.0, |link| {
+            link.telemetry().autopilot().is_some()
+        });
+        // The companion's heartbeat back is signed with the key: it verifies with it only.
+        let mut buffer = [0u8; 2048];
+        let (length, _) = autopilot.socket.recv_from(&mut buffer).unwrap();
+        let verify = |key: [u8; 32]| {
+            let signing = mavlink::SigningData::from_config(mavlink::SigningConfig::new(
+                key, 0, false, false,
+            ));
+            super::super::connection::decode_datagram_signed(&buffer[..length], &signing).len()
+        };
+        assert_eq!(verify(key), 1);
+        assert_eq!(verify([9u8; 32]), 0);
     }
 }

@@ -53,8 +53,6 @@ pub const ARDUCOPTER_MODE_LAND: u32 = 9;
 pub const ONBOARD_COMPUTER_COMPONENT_ID: u8 = 191;
 /// The value of an unused or unmeasured uint16 MAVLink field.
 const UINT16_UNKNOWN: u16 = u16::MAX;
-/// BATTERY_STATUS cell marker "more cells in voltages_ext" (and "cell 0 overflowed").
-const UINT16_CONTINUED: u16 = u16::MAX - 1;
 /// A rangefinder reading older than this no longer says where the pad is.
 pub const RANGEFINDER_STALE_S: f64 = 0.5;
 /// Velocity samples further apart than this are not differenced (a gap, not a rate).
@@ -160,21 +158,17 @@ pub fn decode_custom_mode(kind: AutopilotKind, custom_mode: u32) -> AutopilotMod
     }
 }
 
-/// The pack voltage from BATTERY_STATUS.voltages (mV per cell). UINT16_MAX marks an unused cell.
-/// UINT16_MAX−1 in cell 0 is the spec's overflow form (cell 0 = 65534 mV, cell 1 = the rest),
-/// which summing handles. UINT16_MAX−1 in the last cell means "more cells in voltages_ext";
-/// the 0.21 common dialect here carries no `voltages_ext`, so such a pack's sum would be short:
-/// `None`, and SYS_STATUS's voltage stands in.
-pub fn pack_voltage_from_cells(cells_mv: &[u16; 10]) -> Option<f64> {
-    if cells_mv[9] == UINT16_CONTINUED {
-        return None;
-    }
+/// The pack voltage from BATTERY_STATUS.voltages (mV per cell, UINT16_MAX where there is no
+/// cell) and voltages_ext (cells 11–14, 0 where there is none). UINT16_MAX−1 in cell 0 is the
+/// spec's overflow form (cell 0 = 65534 mV, cell 1 = the rest), which summing handles.
+pub fn pack_voltage_from_cells(cells_mv: &[u16; 10], extension_mv: &[u16; 4]) -> Option<f64> {
+    let cells = cells_mv.iter().filter(|&&cell| cell != UINT16_UNKNOWN);
+    let extension = extension_mv
+        .iter()
+        .filter(|&&cell| cell != 0 && cell != UINT16_UNKNOWN);
     let mut total_mv = 0u32;
     let mut any = false;
-    for &cell in cells_mv {
-        if cell == UINT16_UNKNOWN {
-            continue;
-        }
+    for &cell in cells.chain(extension) {
         total_mv += u32::from(cell);
         any = true;
     }
@@ -186,7 +180,7 @@ pub fn pack_voltage_from_cells(cells_mv: &[u16; 10]) -> Option<f64> {
 pub fn battery_from_battery_status(status: &BATTERY_STATUS_DATA, time_s: f64) -> BatteryTelemetry {
     BatteryTelemetry {
         time_s,
-        voltage_v: pack_voltage_from_cells(&status.voltages),
+        voltage_v: pack_voltage_from_cells(&status.voltages, &status.voltages_ext),
         current_a: current_from_centiamps(status.current_battery),
         consumed_mah: (status.current_consumed >= 0).then_some(f64::from(status.current_consumed)),
         remaining_fraction: remaining_from_percent(status.battery_remaining),
@@ -207,8 +201,9 @@ pub fn battery_from_sys_status(status: &SYS_STATUS_DATA, time_s: f64) -> Battery
 }
 
 fn current_from_centiamps(current_ca: i16) -> Option<f64> {
-    // −1 is the sentinel; any other negative value is a charging current.
-    (current_ca != -1).then_some(f64::from(current_ca) / 100.0)
+    // −1 cA is MAVLink's sentinel; −100 cA is PX4's own "unknown" (its −1 A scaled to cA, as
+    // SIH's battery sends it). Any other negative value is a charging current.
+    (current_ca != -1 && current_ca != -100).then_some(f64::from(current_ca) / 100.0)
 }
 
 fn remaining_from_percent(remaining_percent: i8) -> Option<f64> {
@@ -308,6 +303,8 @@ pub struct TelemetryState {
     rangefinder: Option<(f64, f64)>,
     landed: bool,
     battery: Option<BatteryTelemetry>,
+    /// The home point's altitude above mean sea level (GLOBAL_POSITION_INT alt − relative_alt).
+    home_amsl_m: Option<f64>,
     has_battery_status: bool,
     sys_status_voltage_v: Option<f64>,
     autopilot: Option<AutopilotStatus>,
@@ -371,6 +368,9 @@ impl TelemetryState {
                     self.battery = Some(battery);
                     applied.battery = true;
                 }
+            }
+            MavMessage::GLOBAL_POSITION_INT(global) => {
+                self.home_amsl_m = Some(f64::from(global.alt - global.relative_alt) / 1000.0);
             }
             MavMessage::COMMAND_ACK(ack) => {
                 applied.ack = Some(CommandAck {
@@ -438,6 +438,10 @@ impl TelemetryState {
     pub fn autopilot(&self) -> Option<AutopilotStatus> {
         self.autopilot
     }
+
+    pub fn home_amsl_m(&self) -> Option<f64> {
+        self.home_amsl_m
+    }
 }
 
 fn attitude_from(attitude: &ATTITUDE_DATA) -> Attitude {
@@ -467,6 +471,12 @@ pub enum VehicleCommand {
         velocity_ned_m_s: Vector3<f64>,
         yaw_rad: Option<f64>,
     },
+    /// Ask the autopilot to stream a message at an interval (MAV_CMD_SET_MESSAGE_INTERVAL; it
+    /// applies to the link it arrives on).
+    SetMessageInterval {
+        message_id: u32,
+        interval_us: i64,
+    },
     /// Where the pad is, as angles off the camera's (body FRD) axis, for the autopilot's own
     /// precision landing.
     LandingTarget {
@@ -492,18 +502,21 @@ impl VehicleCommand {
             Self::Takeoff { .. } => Some(MavCmd::MAV_CMD_NAV_TAKEOFF as u32),
             Self::Land => Some(MavCmd::MAV_CMD_NAV_LAND as u32),
             Self::SetOffboard | Self::SetHold => Some(MavCmd::MAV_CMD_DO_SET_MODE as u32),
+            Self::SetMessageInterval { .. } => Some(MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL as u32),
             Self::VelocityNed { .. } | Self::LandingTarget { .. } => None,
         }
     }
 }
 
 /// Who the commands go to.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CommandTarget {
     pub system_id: u8,
     pub component_id: u8,
     /// Decides how modes are encoded; PX4 until a heartbeat says otherwise.
     pub kind: AutopilotKind,
+    /// PX4 takes off to an altitude above mean sea level: home's, when known.
+    pub home_amsl_m: Option<f64>,
 }
 
 /// SET_POSITION_TARGET_LOCAL_NED type_mask for a velocity-only setpoint: position,
@@ -563,24 +576,39 @@ pub fn command_message(
             MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
             [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
         ),
-        // NaN: keep current yaw and horizontal position.
-        VehicleCommand::Takeoff { altitude_m } => long(
-            MavCmd::MAV_CMD_NAV_TAKEOFF,
-            [
-                0.0,
-                0.0,
-                0.0,
-                f32::NAN,
-                f32::NAN,
-                f32::NAN,
-                altitude_m as f32,
-            ],
-        ),
+        // NaN: keep current yaw and horizontal position. ArduPilot's altitude is relative to
+        // home; PX4's is above mean sea level (NaN: its MIS_TAKEOFF_ALT).
+        VehicleCommand::Takeoff { altitude_m } => {
+            let param7 = match (target.kind, target.home_amsl_m) {
+                (AutopilotKind::ArduPilot, _) => altitude_m as f32,
+                (_, Some(home_m)) => (home_m + altitude_m) as f32,
+                (_, None) => f32::NAN,
+            };
+            long(
+                MavCmd::MAV_CMD_NAV_TAKEOFF,
+                [0.0, 0.0, 0.0, f32::NAN, f32::NAN, f32::NAN, param7],
+            )
+        }
         VehicleCommand::Land => long(
             MavCmd::MAV_CMD_NAV_LAND,
             [0.0, 0.0, 0.0, f32::NAN, f32::NAN, f32::NAN, f32::NAN],
         ),
         VehicleCommand::SetOffboard => set_mode(PX4_MAIN_MODE_OFFBOARD, 0, ARDUCOPTER_MODE_GUIDED),
+        VehicleCommand::SetMessageInterval {
+            message_id,
+            interval_us,
+        } => long(
+            MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+            [
+                message_id as f32,
+                interval_us as f32,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+                0.0,
+            ],
+        ),
         VehicleCommand::SetHold => set_mode(
             PX4_MAIN_MODE_AUTO,
             PX4_AUTO_SUB_MODE_LOITER,
@@ -623,6 +651,7 @@ pub fn command_message(
             size_y: size_y_rad as f32,
             target_num: 0,
             frame: MavFrame::MAV_FRAME_BODY_FRD,
+            ..Default::default()
         }),
     }
 }
@@ -786,6 +815,7 @@ mod tests {
             battery_function: MavBatteryFunction::MAV_BATTERY_FUNCTION_ALL,
             mavtype: MavBatteryType::MAV_BATTERY_TYPE_LIPO,
             battery_remaining: remaining,
+            ..Default::default()
         }
     }
 
@@ -809,12 +839,17 @@ mod tests {
         let mut big = [u16::MAX; 10];
         big[0] = u16::MAX - 1;
         big[1] = 1_466;
-        assert_eq!(pack_voltage_from_cells(&big), Some(67.0));
-        // More cells in voltages_ext, which this dialect lacks: unknown.
-        let mut many = [3_900u16; 10];
-        many[9] = u16::MAX - 1;
-        assert_eq!(pack_voltage_from_cells(&many), None);
-        assert_eq!(pack_voltage_from_cells(&[u16::MAX; 10]), None);
+        let no_extension = [0u16; 4];
+        assert_eq!(pack_voltage_from_cells(&big, &no_extension), Some(67.0));
+        // A 12S pack: ten cells, then cells 11 and 12 in voltages_ext (0: no cell).
+        let many = [3_900u16; 10];
+        let extension = [3_900, 3_900, 0, 0];
+        let volts = pack_voltage_from_cells(&many, &extension).unwrap();
+        assert!((volts - 12.0 * 3.9).abs() < 1e-9, "{volts}");
+        assert_eq!(
+            pack_voltage_from_cells(&[u16::MAX; 10], &no_extension),
+            None
+        );
     }
 
     fn sys_status(voltage_mv: u16, current_ca: i16, remaining: i8) -> SYS_STATUS_DATA {
@@ -832,6 +867,7 @@ mod tests {
             errors_count3: 0,
             errors_count4: 0,
             battery_remaining: remaining,
+            ..Default::default()
         }
     }
 
@@ -876,6 +912,7 @@ mod tests {
             id: 0,
             orientation,
             covariance: 0,
+            ..Default::default()
         }
     }
 
@@ -966,6 +1003,7 @@ mod tests {
             &MavMessage::COMMAND_ACK(COMMAND_ACK_DATA {
                 command: MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
                 result: MavResult::MAV_RESULT_DENIED,
+                ..Default::default()
             }),
             0.0,
         );
@@ -984,7 +1022,40 @@ mod tests {
             system_id: 1,
             component_id: 1,
             kind: AutopilotKind::Px4,
+            home_amsl_m: Some(488.0),
         };
+        // Take-off: PX4 above mean sea level, ArduPilot above home, PX4 without home: NaN.
+        let takeoff_param7 = |target: &CommandTarget| match command_message(
+            &VehicleCommand::Takeoff { altitude_m: 8.5 },
+            target,
+            0,
+        ) {
+            MavMessage::COMMAND_LONG(long) => long.param7,
+            other => panic!("not a COMMAND_LONG: {other:?}"),
+        };
+        assert_eq!(takeoff_param7(&target), 496.5);
+        let no_home = CommandTarget {
+            home_amsl_m: None,
+            ..target
+        };
+        assert!(takeoff_param7(&no_home).is_nan());
+        let ardupilot_takeoff = CommandTarget {
+            kind: AutopilotKind::ArduPilot,
+            ..target
+        };
+        assert_eq!(takeoff_param7(&ardupilot_takeoff), 8.5);
+        let MavMessage::COMMAND_LONG(interval) = command_message(
+            &VehicleCommand::SetMessageInterval {
+                message_id: 147,
+                interval_us: 500_000,
+            },
+            &target,
+            0,
+        ) else {
+            panic!("not a COMMAND_LONG");
+        };
+        assert_eq!(interval.command, MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL);
+        assert_eq!((interval.param1, interval.param2), (147.0, 500_000.0));
         let velocity = command_message(
             &VehicleCommand::VelocityNed {
                 velocity_ned_m_s: Vector3::new(1.0, -2.0, 0.5),

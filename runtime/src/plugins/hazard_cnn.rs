@@ -16,8 +16,8 @@ use crate::inference::{
 use crate::registry::{PluginRegistry, RegistryError};
 use crate::task::{parse_params, Task, TaskContext, TaskError};
 use crate::topics::{
-    CameraFrame, HazardDetection, HazardReport, MissionPhase, RelativeState, VehicleState,
-    CAMERA_FRAME, HAZARDS, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
+    CameraFrame, HazardDetection, HazardReport, RelativeState, VehicleState, CAMERA_FRAME, HAZARDS,
+    RELATIVE_STATE, VEHICLE_STATE,
 };
 use algorithms::estimation::projection::pad_relative_to_uav_ned_m;
 use algorithms::vision::camera::PinholeCamera;
@@ -134,13 +134,12 @@ pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
     // Said once per task, not at every restart.
     let cpu_fallback_said = Arc::new(AtomicBool::new(false));
     registry.register_plugin(info, move |params, config| {
-        let mut task = HazardCnnTask::new(
+        let task = HazardCnnTask::new(
             parse_params(params)?,
             config.config_dir.as_deref(),
             config.resource,
             cpu_fallback_said.clone(),
         )?;
-        task.phases = config.phases.clone();
         Ok(Box::new(task) as Box<dyn Task>)
     })?;
     Ok(())
@@ -157,15 +156,12 @@ pub struct HazardCnnTask {
     max_detections: usize,
     min_height_m: f64,
     pad_exclusion_radius_m: f64,
-    /// The mission phases the task watches in; outside them it looks at no frame.
-    phases: Vec<String>,
     resource: Resource,
     cpu_fallback_said: Arc<AtomicBool>,
     backend: Option<Box<dyn InferenceBackend>>,
     frames: Option<Subscriber<CameraFrame>>,
     vehicle: Option<Subscriber<VehicleState>>,
     output: Option<Publisher<HazardReport>>,
-    mission_phase: Option<Subscriber<MissionPhase>>,
     relative: Option<Subscriber<RelativeState>>,
 }
 
@@ -250,14 +246,12 @@ impl HazardCnnTask {
             max_detections: params.max_detections,
             min_height_m: params.min_height_m,
             pad_exclusion_radius_m: params.pad_exclusion_radius_m,
-            phases: Vec::new(),
             resource,
             cpu_fallback_said,
             backend: None,
             frames: None,
             vehicle: None,
             output: None,
-            mission_phase: None,
             relative: None,
         })
     }
@@ -351,7 +345,6 @@ impl Task for HazardCnnTask {
         self.frames = Some(ctx.bus().subscriber(CAMERA_FRAME)?);
         self.vehicle = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
         self.output = Some(ctx.bus().publisher(HAZARDS)?);
-        self.mission_phase = Some(ctx.bus().subscriber(MISSION_PHASE)?);
         self.relative = Some(ctx.bus().subscriber(RELATIVE_STATE)?);
         Ok(())
     }
@@ -368,13 +361,6 @@ impl Task for HazardCnnTask {
         let Some(frame) = frames.take_new() else {
             return Ok(());
         };
-        // Outside its phases (a mission that publishes them), the task watches nothing.
-        let phase = self.mission_phase.as_mut().and_then(|p| p.latest());
-        if let Some(phase) = phase {
-            if !self.phases.is_empty() && !self.phases.iter().any(|p| **p == *phase.value.name) {
-                return Ok(());
-            }
-        }
         let state = vehicle.latest().map(|m| m.value);
         let height_m = state.as_ref().and_then(|s| s.position_ned_m).map(|p| -p.z);
         if height_m.is_some_and(|h| h < self.min_height_m) {
@@ -643,28 +629,19 @@ mod tests {
     }
 
     #[test]
-    fn frames_outside_the_task_phases_or_below_its_height_are_not_looked_at() {
+    fn frames_below_its_height_are_not_looked_at() {
         let harness = Harness::new();
         let bus = &harness.bus;
         let mut hazard = task("").unwrap();
-        hazard.phases = vec!["tracking".into()];
         hazard.start(&mut harness.context(Timestamp::ZERO)).unwrap();
         let frames = bus.publisher::<CameraFrame>(CAMERA_FRAME).unwrap();
         let vehicle = bus.publisher::<VehicleState>(VEHICLE_STATE).unwrap();
-        let phase = bus.publisher::<MissionPhase>(MISSION_PHASE).unwrap();
         let mut reports = bus.subscriber::<HazardReport>(HAZARDS).unwrap();
         let image = Arc::new(algorithms::vision::image::GrayImage::filled(640, 480, 90).unwrap());
         let mut frame_index = 0;
-        // One frame at `height_m` in `phase_name`: did the task report on it?
-        let mut look = |height_m: f64, phase_name: &str| {
+        // One frame at `height_m`: did the task report on it?
+        let mut look = |height_m: f64| {
             let now = Timestamp::from_millis(1000 * (frame_index + 1));
-            phase.publish(
-                now,
-                MissionPhase {
-                    index: 0,
-                    name: Arc::from(phase_name),
-                },
-            );
             vehicle.publish(
                 now,
                 VehicleState {
@@ -687,9 +664,8 @@ mod tests {
             hazard.step(&mut harness.context(now)).unwrap();
             reports.take_new().is_some()
         };
-        assert!(look(8.0, "tracking"));
-        assert!(!look(2.0, "tracking"), "below min_height_m");
-        assert!(!look(8.0, "landing"), "outside the task's phases");
-        assert!(look(4.5, "tracking"));
+        assert!(look(8.0));
+        assert!(!look(2.0), "below min_height_m");
+        assert!(look(4.5));
     }
 }

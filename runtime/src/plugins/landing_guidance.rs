@@ -3,9 +3,9 @@
 //!
 //! `controller = "pid"` (default) flies seed 000's two-stage PID; `controller = "mpc"` the MPC,
 //! whose model step is kept equal to the task's QoS period (re-timed on every level change,
-//! horizon `mpc_horizon_s` long). The descent starts only in the phase named by
-//! `descend_in_phase` (default `"landing"`) once a [`MissionPhase`] is published; with no phase
-//! on the bus (a dry run, a bench test) it is always allowed.
+//! horizon `mpc_horizon_s` long). The descent starts only in the mission's landing phase (its
+//! last, as [`MissionPhase::landing`] says) once a phase is published; with no phase on the bus
+//! (a dry run, a bench test) it is always allowed.
 
 use crate::bus::{Publisher, Subscriber};
 use crate::registry::{PluginRegistry, RegistryError};
@@ -56,9 +56,6 @@ struct Params {
     /// slower than the one the default suits needs more.
     #[serde(default = "default_mpc_solve_time_limit")]
     mpc_solve_time_limit_s: f64,
-    /// The phase in which the descent may start.
-    #[serde(default = "default_descend_phase")]
-    descend_in_phase: String,
 }
 
 #[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
@@ -81,10 +78,6 @@ fn default_mpc_max_accel() -> f64 {
 fn default_mpc_solve_time_limit() -> f64 {
     MpcConfig::default().solve_time_limit_s
 }
-fn default_descend_phase() -> String {
-    "landing".into()
-}
-
 fn default_initial() -> f64 {
     7.5
 }
@@ -106,7 +99,6 @@ struct GuidanceTask {
     controller: LandingController,
     max_fix_age_s: f64,
     max_vision_gap_s: f64,
-    descend_in_phase: String,
     vehicle: Option<Subscriber<VehicleState>>,
     phase: Option<Subscriber<MissionPhase>>,
     relative: Option<Subscriber<RelativeState>>,
@@ -152,7 +144,6 @@ impl GuidanceTask {
             controller,
             max_fix_age_s: params.max_fix_age_s,
             max_vision_gap_s: params.max_vision_gap_s,
-            descend_in_phase: params.descend_in_phase,
             vehicle: None,
             phase: None,
             relative: None,
@@ -207,7 +198,8 @@ impl Task for GuidanceTask {
             .phase
             .as_mut()
             .and_then(|phase| phase.latest())
-            .is_none_or(|phase| *phase.value.name == *self.descend_in_phase);
+            // The mission's landing phase (outside a mission, no phase: descend).
+            .is_none_or(|phase| phase.value.landing);
         let step = self.controller.step(&LandingInput {
             time_s: now_s,
             fix,

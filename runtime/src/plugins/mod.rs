@@ -251,6 +251,7 @@ mod tests {
             MissionPhase {
                 index: 1,
                 name: "tracking".into(),
+                landing: false,
             },
         );
         scheduler.run_for(Duration::from_secs(3)).unwrap();
@@ -265,6 +266,7 @@ mod tests {
             MissionPhase {
                 index: 2,
                 name: "landing".into(),
+                landing: true,
             },
         );
         scheduler.run_for(Duration::from_secs(2)).unwrap();

@@ -145,6 +145,7 @@ pub struct SchedulerBuilder<'r> {
     bus: Option<Bus>,
     resources: Option<Resources>,
     record_trace: bool,
+    gate: PhaseGate,
 }
 
 impl<'r> SchedulerBuilder<'r> {
@@ -156,6 +157,7 @@ impl<'r> SchedulerBuilder<'r> {
             bus: None,
             resources: None,
             record_trace: false,
+            gate: PhaseGate::AllTasks,
         }
     }
 
@@ -197,6 +199,13 @@ impl<'r> SchedulerBuilder<'r> {
     /// Use these resources (to share the GPU with other users of the board).
     pub fn resources(&mut self, resources: Resources) -> &mut Self {
         self.resources = Some(resources);
+        self
+    }
+
+    /// Which tasks run at start (default: all of them; a mission starts with
+    /// [`PhaseGate::NoPhase`] and opens each phase as it begins).
+    pub fn phase_gate(&mut self, gate: PhaseGate) -> &mut Self {
+        self.gate = gate;
         self
     }
 
@@ -310,6 +319,7 @@ impl<'r> SchedulerBuilder<'r> {
                 health: health.clone(),
                 bus: bus.clone(),
                 lease,
+                active: self.gate.admits(config),
             });
         }
         Ok(Parts {
@@ -374,6 +384,30 @@ pub(crate) struct TaskRunner {
     health: MissionHealth,
     bus: Bus,
     lease: Option<ResourceLease>,
+    /// Runs in the current mission phase; a suspended task is never activated.
+    active: bool,
+}
+
+/// Which tasks run: every task (a scheduler outside a mission), or those that list the phase.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PhaseGate {
+    /// No mission: every task runs.
+    AllTasks,
+    /// Before the first phase and after the last: no task runs.
+    NoPhase,
+    /// The tasks whose `phases` list this name run; the others are suspended.
+    Phase(String),
+}
+
+impl PhaseGate {
+    /// Whether a task with this config runs under the gate.
+    pub fn admits(&self, config: &TaskConfig) -> bool {
+        match self {
+            Self::AllTasks => true,
+            Self::NoPhase => false,
+            Self::Phase(name) => config.runs_in(name),
+        }
+    }
 }
 
 impl TaskRunner {
@@ -397,9 +431,34 @@ impl TaskRunner {
         self.stats.clone()
     }
 
-    /// Still activated (not failed for good).
+    /// Runs in the mission's current phase.
+    pub fn is_active(&self) -> bool {
+        self.active
+    }
+
+    /// Still activated: not failed for good, and not suspended outside its phases.
     pub fn is_scheduled(&self) -> bool {
-        self.state != TaskHealth::Failed
+        self.state != TaskHealth::Failed && self.active
+    }
+
+    /// Applies a phase gate at `now`: a task the gate no longer admits is suspended (its
+    /// instance kept, never stepped); one it admits again resumes with an activation at `now`.
+    /// Returns the change, if any.
+    pub fn apply_gate(&mut self, gate: &PhaseGate, now: Timestamp) -> Option<bool> {
+        self.set_active(gate.admits(&self.config), now)
+    }
+
+    /// Suspends or resumes the task at `now`; returns the change, if any.
+    pub fn set_active(&mut self, active: bool, now: Timestamp) -> Option<bool> {
+        if active == self.active {
+            return None;
+        }
+        self.active = active;
+        if active {
+            self.cadence = Cadence::new(now.as_nanos(), self.cadence.period_ns());
+        }
+        tracing::info!(task = %self.config.name, "task {}", if active { "resumed" } else { "suspended" });
+        Some(active)
     }
 
     pub fn next_due(&self) -> Timestamp {
@@ -629,6 +688,89 @@ impl TaskRunner {
 
     pub fn snapshot(&self) -> TaskStats {
         lock(&self.stats).snapshot(&self.config.name, self.state)
+    }
+}
+
+/// What the mission runner needs of a scheduler, whichever clock drives it.
+pub trait TaskScheduler {
+    fn bus(&self) -> &Bus;
+    fn start(&mut self) -> Result<(), SchedulerError>;
+    /// Virtual time: runs every activation due up to `now`. Real time: the workers run by
+    /// themselves, so nothing.
+    fn run_until(&mut self, now: Timestamp) -> Result<(), SchedulerError>;
+    fn level(&self, task: &str) -> Option<usize>;
+    fn set_level(&mut self, task: &str, level: usize) -> Result<(), SchedulerError>;
+    fn set_phase(&mut self, gate: &PhaseGate);
+    /// When `task` next steps, where the scheduler knows ahead (virtual time).
+    fn next_activation(&self, task: &str) -> Option<Timestamp>;
+    fn stats(&self) -> Vec<TaskStats>;
+    fn failed_tasks(&self) -> Vec<String>;
+    fn stop(&mut self);
+}
+
+impl TaskScheduler for VirtualScheduler {
+    fn bus(&self) -> &Bus {
+        VirtualScheduler::bus(self)
+    }
+    fn start(&mut self) -> Result<(), SchedulerError> {
+        VirtualScheduler::start(self)
+    }
+    fn run_until(&mut self, now: Timestamp) -> Result<(), SchedulerError> {
+        VirtualScheduler::run_until(self, now).map(|_| ())
+    }
+    fn level(&self, task: &str) -> Option<usize> {
+        VirtualScheduler::level(self, task)
+    }
+    fn set_level(&mut self, task: &str, level: usize) -> Result<(), SchedulerError> {
+        VirtualScheduler::set_level(self, task, level)
+    }
+    fn set_phase(&mut self, gate: &PhaseGate) {
+        VirtualScheduler::set_phase(self, gate)
+    }
+    fn next_activation(&self, task: &str) -> Option<Timestamp> {
+        VirtualScheduler::next_activation(self, task)
+    }
+    fn stats(&self) -> Vec<TaskStats> {
+        VirtualScheduler::stats(self)
+    }
+    fn failed_tasks(&self) -> Vec<String> {
+        VirtualScheduler::failed_tasks(self)
+    }
+    fn stop(&mut self) {
+        VirtualScheduler::stop(self)
+    }
+}
+
+impl TaskScheduler for RealTimeScheduler {
+    fn bus(&self) -> &Bus {
+        RealTimeScheduler::bus(self)
+    }
+    fn start(&mut self) -> Result<(), SchedulerError> {
+        RealTimeScheduler::start(self)
+    }
+    fn run_until(&mut self, _now: Timestamp) -> Result<(), SchedulerError> {
+        Ok(())
+    }
+    fn level(&self, task: &str) -> Option<usize> {
+        RealTimeScheduler::level(self, task)
+    }
+    fn set_level(&mut self, task: &str, level: usize) -> Result<(), SchedulerError> {
+        RealTimeScheduler::set_level(self, task, level)
+    }
+    fn set_phase(&mut self, gate: &PhaseGate) {
+        RealTimeScheduler::set_phase(self, gate)
+    }
+    fn next_activation(&self, _task: &str) -> Option<Timestamp> {
+        None
+    }
+    fn stats(&self) -> Vec<TaskStats> {
+        RealTimeScheduler::stats(self)
+    }
+    fn failed_tasks(&self) -> Vec<String> {
+        RealTimeScheduler::failed_tasks(self)
+    }
+    fn stop(&mut self) {
+        RealTimeScheduler::stop(self)
     }
 }
 

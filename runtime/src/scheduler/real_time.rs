@@ -7,7 +7,7 @@
 //! sources) belongs on tokio, outside these workers.
 
 use super::stats::StatsAccum;
-use super::{lock, Parts, Resources, SchedulerError, TaskRunner, TaskStats};
+use super::{lock, Parts, PhaseGate, Resources, SchedulerError, TaskRunner, TaskStats};
 use crate::bus::Bus;
 use crate::clock::{Clock, Timestamp, WallClock};
 use crate::config::Resource;
@@ -49,6 +49,8 @@ impl Default for RealTimeOptions {
 struct WorkerShared {
     stop: AtomicBool,
     requested_level: AtomicUsize,
+    /// The task's phases include the mission's current one.
+    active: AtomicBool,
 }
 
 enum Command {
@@ -61,6 +63,7 @@ enum Command {
 
 struct Worker {
     name: String,
+    config: crate::config::TaskConfig,
     resource: Resource,
     cores: Vec<usize>,
     level_count: usize,
@@ -94,12 +97,14 @@ impl RealTimeScheduler {
             .iter()
             .map(|runner| Worker {
                 name: runner.name().to_string(),
+                config: runner.config().clone(),
                 resource: runner.config().resource,
                 cores: runner.config().cores.clone(),
                 level_count: runner.level_count(),
                 shared: Arc::new(WorkerShared {
                     stop: AtomicBool::new(false),
                     requested_level: AtomicUsize::new(runner.level()),
+                    active: AtomicBool::new(runner.is_active()),
                 }),
                 stats: runner.stats_handle(),
                 thread: None,
@@ -219,6 +224,19 @@ impl RealTimeScheduler {
             thread.thread().unpark();
         }
         Ok(())
+    }
+
+    /// Enters a phase: workers of tasks the gate does not admit stop stepping (they sleep
+    /// until resumed); the ones it admits again are woken and step at once.
+    pub fn set_phase(&self, gate: &PhaseGate) {
+        for worker in &self.workers {
+            let active = gate.admits(&worker.config);
+            if worker.shared.active.swap(active, Ordering::AcqRel) != active {
+                if let Some(thread) = &worker.thread {
+                    thread.thread().unpark();
+                }
+            }
+        }
     }
 
     /// The level the task's worker runs at.
@@ -373,6 +391,13 @@ fn worker_main(
         let requested = shared.requested_level.load(Ordering::Acquire);
         if requested != runner.level() {
             runner.change_level(requested, clock.now());
+        }
+        runner.set_active(shared.active.load(Ordering::Acquire), clock.now());
+        if !runner.is_active() {
+            // Outside the task's phases: sleep until resumed or stopped.
+            last_finished = None;
+            thread::park();
+            continue;
         }
         if !runner.is_scheduled() {
             // Failed for good: wait for the stop.

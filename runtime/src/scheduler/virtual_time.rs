@@ -7,7 +7,7 @@
 //! that fall inside that cost are skipped exactly as in real time. Nothing depends on the host's
 //! speed, so the same config and seed replay the same trace.
 
-use super::{ActivationReport, Parts, Resources, SchedulerError, TaskRunner, TaskStats};
+use super::{ActivationReport, Parts, PhaseGate, Resources, SchedulerError, TaskRunner, TaskStats};
 use crate::bus::Bus;
 use crate::clock::{Clock, ClockError, Timestamp, VirtualClock};
 use crate::task::MissionHealth;
@@ -45,6 +45,10 @@ pub enum TraceKind {
     LevelChanged {
         level: usize,
     },
+    /// The mission entered a phase the task does not list.
+    Suspended,
+    /// The mission entered a phase the task lists again.
+    Resumed,
     Stopped,
 }
 
@@ -248,6 +252,27 @@ impl VirtualScheduler {
             self.schedule(index);
         }
         Ok(())
+    }
+
+    /// Enters a phase: tasks the gate does not admit are suspended (their queued activation
+    /// dropped), the ones it admits again resume with an activation now.
+    pub fn set_phase(&mut self, gate: &PhaseGate) {
+        let now = self.clock.now();
+        for index in 0..self.runners.len() {
+            let Some(active) = self.runners[index].apply_gate(gate, now) else {
+                continue;
+            };
+            let kind = if active {
+                TraceKind::Resumed
+            } else {
+                TraceKind::Suspended
+            };
+            self.push_trace(now, index, kind);
+            if self.started {
+                self.generations[index] += 1;
+                self.schedule(index);
+            }
+        }
     }
 
     fn index_of(&self, task: &str) -> Result<usize, SchedulerError> {

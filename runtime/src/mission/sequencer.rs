@@ -12,14 +12,24 @@
 //! Link loss: nothing can be sent, so the sequencer only records it; PX4 leaves offboard by
 //! itself when setpoints stop (COM_OF_LOSS_T) and holds. When the link returns the sequencer
 //! streams setpoints again and re-enters offboard, and the phase goes on where it was.
+//!
+//! Safety: without `control` (observe mode) the sequencer never commands anything; it follows
+//! the flight the pilot or the autopilot's own mission flies (the first phase begins when the
+//! vehicle is airborne, the middle ones last their configured time, the last ends on the
+//! ground). With `control`, a mode change that the sequencer did not ask for while the link is
+//! up (a pilot's switch, a ground station) is a takeover: it stops commanding at once, for
+//! good. [`MissionSequencer::request_landing`] (the run's time is up, Ctrl-C) lands the vehicle
+//! where it is with the autopilot's land mode.
 
-pub use crate::link::{AutopilotMode, VehicleCommand};
+pub use crate::link::{AutopilotKind, AutopilotMode, VehicleCommand};
 use crate::topics::LandingSetpoint;
 use nalgebra::Vector3;
 
 /// What the link says about the autopilot.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AutopilotView {
+    /// Which firmware: ArduPilot arms and takes off in GUIDED, PX4 in any mode.
+    pub kind: AutopilotKind,
     pub armed: bool,
     pub mode: AutopilotMode,
     /// On the ground (EXTENDED_SYS_STATE).
@@ -48,6 +58,16 @@ pub enum MissionEvent {
     Aborted {
         reason: String,
     },
+    /// Someone else changed the mode while qosrt held control: it commands nothing more.
+    TakenOver {
+        mode: AutopilotMode,
+    },
+    /// Landing where the vehicle is, with the autopilot's land mode.
+    LandingHere {
+        reason: String,
+    },
+    /// Landed and disarmed.
+    Disarmed,
 }
 
 /// The sequencer's configuration.
@@ -73,9 +93,29 @@ pub struct MissionPlan {
     pub command_retry_s: f64,
     /// Setpoints must stream this long before offboard is requested (PX4 needs > 2 Hz).
     pub offboard_preamble_s: f64,
+    /// Command the vehicle (`--control`); without it the sequencer only follows the flight.
+    pub control: bool,
+    /// A landing task steers the last phase; without one (no camera) the last phase lands
+    /// where the vehicle is with the autopilot's land mode.
+    pub vision_landing: bool,
 }
 
 impl MissionPlan {
+    /// The plan a config flies: its phases and their durations, the follow height (the
+    /// landing task's IH above the take-off point); the vehicle follows the tractor where it
+    /// takes off unless told where to meet it.
+    pub fn for_mission(config: &crate::config::MissionConfig) -> Self {
+        let phases = &config.mission.phases;
+        let mut plan = Self::new(
+            phases.iter().map(|p| p.name.clone()).collect(),
+            phases.iter().map(|p| p.duration_s).collect(),
+        );
+        plan.cruise_altitude_m = config
+            .plugin_number("landing_guidance", "initial_altitude_m")
+            .unwrap_or(algorithms::control::landing::LandingConfig::default().initial_height_m);
+        plan
+    }
+
     /// A plan with our defaults for the given phases.
     pub fn new(phase_names: Vec<String>, phase_durations_s: Vec<f64>) -> Self {
         Self {
@@ -89,6 +129,8 @@ impl MissionPlan {
             command_timeout_s: 30.0,
             command_retry_s: 1.0,
             offboard_preamble_s: 0.5,
+            control: true,
+            vision_landing: true,
         }
     }
 }
@@ -96,11 +138,26 @@ impl MissionPlan {
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Stage {
     WaitingForAutopilot,
-    Arming { since_s: f64, sent_s: f64 },
-    TakingOff { since_s: f64, sent_s: f64 },
-    EnteringOffboard { since_s: f64, sent_s: Option<f64> },
+    Arming {
+        since_s: f64,
+        sent_s: f64,
+    },
+    TakingOff {
+        since_s: f64,
+        sent_s: f64,
+    },
+    EnteringOffboard {
+        since_s: f64,
+        sent_s: Option<f64>,
+    },
     Flying,
-    Landing { sent_s: f64 },
+    Landing {
+        sent_s: f64,
+    },
+    /// Observe mode: following the flight, never commanding.
+    Observing,
+    /// Control was taken away: nothing more is sent.
+    Released,
     Done,
 }
 
@@ -113,6 +170,8 @@ pub struct MissionStatus {
     pub phase_started_s: f64,
     pub link_up: bool,
     pub finished: bool,
+    /// qosrt is commanding the vehicle (armed it or holds offboard), so a stop must land it.
+    pub holds_control: bool,
 }
 
 /// The sequencer.
@@ -127,6 +186,12 @@ pub struct MissionSequencer {
     takeoff_altitude_down_m: Option<f64>,
     /// The first connection is not a restoration.
     ever_connected: bool,
+    /// The autopilot has reported its land mode since Land was sent.
+    land_seen: bool,
+    /// When GUIDED was last asked for (ArduPilot, before arming).
+    guided_sent_s: f64,
+    /// PX4 has reported AUTO.TAKEOFF since the take-off was sent.
+    takeoff_mode_seen: bool,
 }
 
 /// One step's input.
@@ -144,15 +209,23 @@ pub struct SequencerInput {
 
 impl MissionSequencer {
     pub fn new(plan: MissionPlan) -> Self {
+        let stage = if plan.control {
+            Stage::WaitingForAutopilot
+        } else {
+            Stage::Observing
+        };
         Self {
             plan,
-            stage: Stage::WaitingForAutopilot,
+            stage,
             phase: None,
             phase_started_s: 0.0,
             link_up: false,
             land_now: false,
             takeoff_altitude_down_m: None,
             ever_connected: false,
+            land_seen: false,
+            guided_sent_s: f64::NEG_INFINITY,
+            takeoff_mode_seen: false,
         }
     }
 
@@ -162,6 +235,32 @@ impl MissionSequencer {
             phase_started_s: self.phase_started_s,
             link_up: self.link_up,
             finished: self.stage == Stage::Done,
+            holds_control: matches!(
+                self.stage,
+                Stage::Arming { .. }
+                    | Stage::TakingOff { .. }
+                    | Stage::EnteringOffboard { .. }
+                    | Stage::Flying
+            ),
+        }
+    }
+
+    /// Ends the mission early (time up, Ctrl-C): when qosrt holds control it lands the vehicle
+    /// where it is and finishes once disarmed; otherwise it finishes at once.
+    pub fn request_landing(&mut self, reason: &str) -> (Vec<VehicleCommand>, Vec<MissionEvent>) {
+        if self.status().holds_control {
+            self.stage = Stage::Landing {
+                sent_s: f64::NEG_INFINITY,
+            };
+            let event = MissionEvent::LandingHere {
+                reason: reason.to_string(),
+            };
+            (vec![VehicleCommand::Land], vec![event])
+        } else {
+            if !matches!(self.stage, Stage::Landing { .. }) {
+                self.stage = Stage::Done;
+            }
+            (Vec::new(), Vec::new())
         }
     }
 
@@ -202,9 +301,27 @@ impl MissionSequencer {
             return (commands, events);
         };
         let last_phase = self.plan.phase_names.len().saturating_sub(1);
+        if matches!(self.stage, Stage::Landing { .. }) {
+            self.land_seen |= autopilot.mode == AutopilotMode::Land;
+        }
+        if let Some(mode) = self.taken_over(&autopilot) {
+            events.push(MissionEvent::TakenOver { mode });
+            self.stage = Stage::Released;
+            return (commands, events);
+        }
         match self.stage {
+            Stage::Observing => self.observe(&autopilot, now_s, &mut events),
+            Stage::Released => {}
             Stage::WaitingForAutopilot => {
-                if autopilot.armed {
+                if autopilot.kind == AutopilotKind::ArduPilot
+                    && autopilot.mode != AutopilotMode::Offboard
+                {
+                    // ArduCopter takes off only in GUIDED: enter it first (once a second).
+                    if now_s - self.guided_sent_s >= self.plan.command_retry_s {
+                        commands.push(VehicleCommand::SetOffboard);
+                        self.guided_sent_s = now_s;
+                    }
+                } else if autopilot.armed {
                     // Already armed (a restarted companion): go straight to the take-off.
                     self.stage = Stage::TakingOff {
                         since_s: now_s,
@@ -250,7 +367,13 @@ impl MissionSequencer {
                     .takeoff_altitude_down_m
                     .get_or_insert(autopilot.position_ned_m.z);
                 let climbed_m = start_down_m - autopilot.position_ned_m.z;
-                if climbed_m >= self.plan.cruise_altitude_m - 0.3 {
+                self.takeoff_mode_seen |= autopilot.mode == AutopilotMode::Takeoff;
+                // PX4 may finish its take-off lower (MIS_TAKEOFF_ALT) and hold: the flight out
+                // climbs the rest.
+                let px4_takeoff_done = self.takeoff_mode_seen
+                    && autopilot.mode != AutopilotMode::Takeoff
+                    && climbed_m > 1.0;
+                if climbed_m >= self.plan.cruise_altitude_m - 0.3 || px4_takeoff_done {
                     events.push(MissionEvent::TookOff);
                     self.start_phase(0, now_s, &mut events);
                     self.stage = Stage::EnteringOffboard {
@@ -269,7 +392,7 @@ impl MissionSequencer {
                     });
                     commands.push(VehicleCommand::Land);
                     self.stage = Stage::Done;
-                } else if autopilot.mode != AutopilotMode::Takeoff
+                } else if !self.taking_off(&autopilot, climbed_m)
                     && now_s - sent_s >= self.plan.command_retry_s
                 {
                     commands.push(VehicleCommand::Takeoff {
@@ -296,6 +419,13 @@ impl MissionSequencer {
                     };
                 }
             }
+            Stage::Flying if !self.plan.vision_landing && self.phase == Some(last_phase) => {
+                events.push(MissionEvent::LandingHere {
+                    reason: "no camera: the autopilot lands where the vehicle is".into(),
+                });
+                commands.push(VehicleCommand::Land);
+                self.stage = Stage::Landing { sent_s: now_s };
+            }
             Stage::Flying => {
                 let touchdown = autopilot.landed
                     || input.landing.is_some_and(|setpoint| {
@@ -311,6 +441,7 @@ impl MissionSequencer {
             }
             Stage::Landing { sent_s } => {
                 if !autopilot.armed {
+                    events.push(MissionEvent::Disarmed);
                     self.stage = Stage::Done;
                 } else if autopilot.mode != AutopilotMode::Land
                     && now_s - sent_s >= self.plan.command_retry_s
@@ -322,6 +453,50 @@ impl MissionSequencer {
             Stage::Done => {}
         }
         (commands, events)
+    }
+
+    /// The mode someone else chose while qosrt held offboard or was landing: `None` while the
+    /// mode is the one qosrt asked for.
+    fn taken_over(&self, autopilot: &AutopilotView) -> Option<AutopilotMode> {
+        let expected = match self.stage {
+            Stage::Flying => AutopilotMode::Offboard,
+            // Once the autopilot has entered its land mode; disarmed on the ground, PX4 reports
+            // its previous mode again, which is not a takeover.
+            Stage::Landing { .. } if self.land_seen && autopilot.armed => AutopilotMode::Land,
+            _ => return None,
+        };
+        (autopilot.mode != expected).then_some(autopilot.mode)
+    }
+
+    /// Whether the take-off command is being flown (PX4: AUTO.TAKEOFF; ArduPilot climbs in
+    /// GUIDED, so: off the ground).
+    fn taking_off(&self, autopilot: &AutopilotView, climbed_m: f64) -> bool {
+        match autopilot.kind {
+            AutopilotKind::ArduPilot => autopilot.armed && climbed_m > 0.2,
+            _ => autopilot.mode == AutopilotMode::Takeoff,
+        }
+    }
+
+    /// Observe mode: the phases follow the flight (airborne, durations, on the ground).
+    fn observe(&mut self, autopilot: &AutopilotView, now_s: f64, events: &mut Vec<MissionEvent>) {
+        let last_phase = self.plan.phase_names.len().saturating_sub(1);
+        match self.phase {
+            None if autopilot.armed && !autopilot.landed => {
+                events.push(MissionEvent::TookOff);
+                self.start_phase(0, now_s, events);
+            }
+            Some(phase) if phase < last_phase => {
+                let duration_s = self.plan.phase_durations_s.get(phase).copied();
+                if now_s - self.phase_started_s >= duration_s.unwrap_or(0.0) {
+                    self.start_phase(phase + 1, now_s, events);
+                }
+            }
+            Some(_) if autopilot.landed && !autopilot.armed => {
+                events.push(MissionEvent::Touchdown);
+                self.stage = Stage::Done;
+            }
+            _ => {}
+        }
     }
 
     fn start_phase(&mut self, phase: usize, now_s: f64, events: &mut Vec<MissionEvent>) {
@@ -427,6 +602,7 @@ mod tests {
         fn new() -> Self {
             Self {
                 view: AutopilotView {
+                    kind: AutopilotKind::Px4,
                     armed: false,
                     mode: AutopilotMode::Hold,
                     landed: true,
@@ -678,5 +854,178 @@ mod tests {
         assert!(aborted);
         assert!((25..=35).contains(&arms), "{arms} arm commands in 30 s");
         assert!(stubborn.status().finished);
+    }
+
+    /// Steps the sequencer against the obedient autopilot until `until` holds or 200 s pass.
+    fn fly_until(
+        sequencer: &mut MissionSequencer,
+        autopilot: &mut Obedient,
+        time_s: &mut f64,
+        until: impl Fn(&MissionSequencer, &Obedient) -> bool,
+    ) -> Vec<MissionEvent> {
+        let dt_s = 0.05;
+        let mut events = Vec::new();
+        while !until(sequencer, autopilot) {
+            let (commands, new_events) = sequencer.step(&SequencerInput {
+                time_s: *time_s,
+                link_up: true,
+                autopilot: Some(autopilot.view),
+                landing: Some(landing(LandingMode::Follow, 0.0)),
+                land_now: None,
+            });
+            events.extend(new_events);
+            autopilot.apply(&commands, dt_s);
+            *time_s += dt_s;
+            assert!(*time_s < 200.0, "never got there: {events:?}");
+        }
+        events
+    }
+
+    #[test]
+    fn observe_mode_commands_nothing_and_follows_the_flight() {
+        let mut observer = MissionSequencer::new(MissionPlan {
+            control: false,
+            ..plan()
+        });
+        let mut view = Obedient::new().view;
+        let mut phases = Vec::new();
+        for k in 0..2000 {
+            let time_s = k as f64 * 0.05;
+            // The pilot arms and takes off at 10 s, lands at 80 s.
+            view.armed = (10.0..80.0).contains(&time_s);
+            view.landed = !view.armed;
+            let (commands, events) = observer.step(&SequencerInput {
+                time_s,
+                link_up: true,
+                autopilot: Some(view),
+                landing: Some(landing(LandingMode::Follow, -1.0)),
+                land_now: Some("battery"),
+            });
+            assert!(commands.is_empty(), "observe mode sent {commands:?}");
+            for event in events {
+                if let MissionEvent::PhaseStarted { phase, .. } = event {
+                    phases.push((phase, time_s));
+                }
+            }
+        }
+        assert!(!observer.status().holds_control);
+        // Airborne at 10 s; transit's configured 0 s, tracking 30 s; on the ground at 80 s.
+        assert_eq!(phases.iter().map(|p| p.0).collect::<Vec<_>>(), [0, 1, 2]);
+        assert!((phases[0].1 - 10.0).abs() < 0.06, "{phases:?}");
+        assert!(
+            (phases[2].1 - phases[1].1 - 30.0).abs() < 0.06,
+            "{phases:?}"
+        );
+        assert!(observer.status().finished);
+    }
+
+    #[test]
+    fn a_mode_change_by_someone_else_stops_commanding_at_once() {
+        let mut sequencer = MissionSequencer::new(plan());
+        let mut autopilot = Obedient::new();
+        let mut time_s = 0.0;
+        fly_until(&mut sequencer, &mut autopilot, &mut time_s, |s, _| {
+            s.status().phase == Some(1)
+        });
+        assert!(sequencer.status().holds_control);
+        // A ground station switches to position mode.
+        autopilot.view.mode = AutopilotMode::Position;
+        let (commands, events) = sequencer.step(&SequencerInput {
+            time_s,
+            link_up: true,
+            autopilot: Some(autopilot.view),
+            landing: Some(landing(LandingMode::Follow, 0.0)),
+            land_now: Some("battery"),
+        });
+        assert!(commands.is_empty(), "{commands:?}");
+        assert_eq!(
+            events,
+            [
+                MissionEvent::LandNow {
+                    reason: "battery".into()
+                },
+                MissionEvent::TakenOver {
+                    mode: AutopilotMode::Position
+                }
+            ]
+        );
+        // Never again, whatever the mode does next.
+        for k in 1..100 {
+            autopilot.view.mode = AutopilotMode::Offboard;
+            let (commands, _) = sequencer.step(&SequencerInput {
+                time_s: time_s + k as f64 * 0.05,
+                link_up: true,
+                autopilot: Some(autopilot.view),
+                landing: Some(landing(LandingMode::Follow, 0.0)),
+                land_now: None,
+            });
+            assert!(commands.is_empty());
+        }
+        assert!(!sequencer.status().holds_control);
+        // A stop now has nothing to land.
+        assert_eq!(sequencer.request_landing("time up").0, []);
+    }
+
+    #[test]
+    fn a_stop_lands_where_the_vehicle_is_and_waits_for_disarm() {
+        let mut sequencer = MissionSequencer::new(plan());
+        let mut autopilot = Obedient::new();
+        let mut time_s = 0.0;
+        fly_until(&mut sequencer, &mut autopilot, &mut time_s, |s, _| {
+            s.status().phase == Some(1)
+        });
+        let (commands, events) = sequencer.request_landing("--duration-s ran out");
+        assert_eq!(commands, [VehicleCommand::Land]);
+        assert!(matches!(events[..], [MissionEvent::LandingHere { .. }]));
+        let events = fly_until(&mut sequencer, &mut autopilot, &mut time_s, |s, _| {
+            s.status().finished
+        });
+        assert!(events.contains(&MissionEvent::Disarmed), "{events:?}");
+        assert!(!events
+            .iter()
+            .any(|e| matches!(e, MissionEvent::TakenOver { .. })));
+    }
+
+    #[test]
+    fn without_a_camera_the_last_phase_lands_with_the_autopilot() {
+        let mut sequencer = MissionSequencer::new(MissionPlan {
+            vision_landing: false,
+            ..plan()
+        });
+        let mut autopilot = Obedient::new();
+        let mut time_s = 0.0;
+        let events = fly_until(&mut sequencer, &mut autopilot, &mut time_s, |s, _| {
+            s.status().finished
+        });
+        let landing_at = events
+            .iter()
+            .position(|e| matches!(e, MissionEvent::LandingHere { .. }))
+            .expect("landed by the autopilot");
+        let last_phase_at = events
+            .iter()
+            .position(|e| matches!(e, MissionEvent::PhaseStarted { phase: 2, .. }))
+            .unwrap();
+        assert!(last_phase_at < landing_at);
+        assert_eq!(events.last(), Some(&MissionEvent::Disarmed));
+    }
+
+    #[test]
+    fn ardupilot_enters_guided_before_arming() {
+        let mut sequencer = MissionSequencer::new(plan());
+        let mut view = Obedient::new().view;
+        view.kind = AutopilotKind::ArduPilot;
+        view.mode = AutopilotMode::Other { custom_mode: 0 };
+        let input = |view: AutopilotView, time_s: f64| SequencerInput {
+            time_s,
+            link_up: true,
+            autopilot: Some(view),
+            landing: None,
+            land_now: None,
+        };
+        let (commands, _) = sequencer.step(&input(view, 0.0));
+        assert_eq!(commands, [VehicleCommand::SetOffboard]);
+        view.mode = AutopilotMode::Offboard;
+        let (commands, _) = sequencer.step(&input(view, 0.1));
+        assert_eq!(commands, [VehicleCommand::Arm]);
     }
 }

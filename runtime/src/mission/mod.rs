@@ -1,0 +1,13 @@
+//! The mission: the sequencer (what to command, which phase flies), the runner (the one loop
+//! that joins link, governor, camera, scheduler and sequencer, onboard and in simulation) and
+//! what a run logs.
+
+pub mod report;
+pub mod runner;
+pub mod sequencer;
+
+pub use report::{GovernorDecision, MissionLog};
+pub use runner::{describe_mission, MissionRunner, RunnerError, RunnerOptions, StepReport};
+pub use sequencer::{
+    AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, SequencerInput,
+};

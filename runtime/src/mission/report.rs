@@ -1,0 +1,147 @@
+//! What a mission run saw and decided, for the log while it runs and the report at its end:
+//! mission events, governor decisions (task, level from → to, reason), the battery as the
+//! autopilot reported it, the autopilot's modes, camera frames and their faults.
+
+use crate::config::TaskConfig;
+use crate::governor::GovernorEvent;
+use crate::link::mapping::{AutopilotKind, AutopilotStatus};
+use crate::telemetry::BatteryTelemetry;
+use serde::Serialize;
+
+/// One task's move in a governor decision, in the config's knob values.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LevelMove {
+    pub task: String,
+    pub knob: String,
+    pub from: f64,
+    pub to: f64,
+}
+
+/// One governor decision.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GovernorDecision {
+    pub time_s: f64,
+    /// `levels_changed`, `land_now` or `replan_failed`.
+    pub kind: &'static str,
+    /// The current phase's tasks that changed level (empty when only later phases changed).
+    pub moves: Vec<LevelMove>,
+    pub reason: String,
+    pub description: String,
+}
+
+impl GovernorDecision {
+    pub fn from_event(
+        time_s: f64,
+        event: &GovernorEvent,
+        tasks: &[TaskConfig],
+        description: String,
+    ) -> Self {
+        let (kind, moves, reason) = match event {
+            GovernorEvent::LevelsChanged(change) => {
+                let old = change.old_levels.first().map(Vec::as_slice).unwrap_or(&[]);
+                let new = change.new_levels.first().map(Vec::as_slice).unwrap_or(&[]);
+                let moves = new
+                    .iter()
+                    .filter_map(|after| {
+                        let before = old.iter().find(|b| b.task == after.task)?;
+                        let task = tasks.get(after.task)?;
+                        (before.level != after.level).then(|| LevelMove {
+                            task: task.name.clone(),
+                            knob: task.knob.to_string(),
+                            from: task.levels[before.level],
+                            to: task.levels[after.level],
+                        })
+                    })
+                    .collect();
+                ("levels_changed", moves, change.reason.to_string())
+            }
+            GovernorEvent::LandNow(_) => (
+                "land_now",
+                Vec::new(),
+                "even the lowest levels do not fit: land now".to_string(),
+            ),
+            GovernorEvent::ReplanFailed { message, .. } => {
+                ("replan_failed", Vec::new(), message.clone())
+            }
+        };
+        Self {
+            time_s,
+            kind,
+            moves,
+            reason,
+            description,
+        }
+    }
+}
+
+/// A mode the autopilot reported, when it first did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ModeChange {
+    pub time_s: f64,
+    pub mode: String,
+    pub armed: bool,
+}
+
+/// The battery as qosrt saw it: the first and the latest reading.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+pub struct BatterySeen {
+    pub samples: u64,
+    pub first: Option<BatteryTelemetry>,
+    pub last: Option<BatteryTelemetry>,
+}
+
+/// Everything the runner logged.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct MissionLog {
+    pub autopilot: Option<String>,
+    pub events: Vec<(f64, String)>,
+    pub governor: Vec<GovernorDecision>,
+    pub modes: Vec<ModeChange>,
+    pub battery: BatterySeen,
+    pub frames: u64,
+    pub camera_errors: u64,
+    pub telemetry_refused: u64,
+}
+
+impl MissionLog {
+    pub fn event(&mut self, time_s: f64, what: String) {
+        self.events.push((time_s, what));
+    }
+
+    pub fn governor(&mut self, decision: GovernorDecision) {
+        self.governor.push(decision);
+    }
+
+    pub fn battery(&mut self, sample: BatteryTelemetry) {
+        self.battery.samples += 1;
+        self.battery.first.get_or_insert(sample);
+        self.battery.last = Some(sample);
+    }
+
+    /// Notes the autopilot's kind and every change of its mode or armed state.
+    pub fn autopilot(&mut self, time_s: f64, status: &AutopilotStatus) {
+        if self.autopilot.is_none() {
+            self.autopilot = Some(
+                match status.kind {
+                    AutopilotKind::Px4 => "PX4",
+                    AutopilotKind::ArduPilot => "ArduPilot",
+                    AutopilotKind::Other(_) => "other",
+                }
+                .to_string(),
+            );
+        }
+        let mode = format!("{:?}", status.mode);
+        let changed = self
+            .modes
+            .last()
+            .is_none_or(|last| last.mode != mode || last.armed != status.armed);
+        if changed {
+            tracing::info!(time_s, %mode, armed = status.armed, "autopilot mode");
+            self.modes.push(ModeChange {
+                time_s,
+                mode,
+                armed: status.armed,
+            });
+        }
+    }
+}

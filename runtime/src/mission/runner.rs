@@ -1,0 +1,510 @@
+//! The mission runner: the one loop that flies a mission, onboard and in simulation.
+//!
+//! Each [`MissionRunner::step`] runs, at the clock's `now`: the link (telemetry in), the
+//! governor (battery telemetry → QoS levels), the camera (frames in, stamped at capture), the
+//! scheduler (the tasks of the current phase), the sequencer (phases, commands) and the link
+//! again (commands out). What drives it is the caller's: `qosrt run` calls it on the wall
+//! clock with a [`RealTimeScheduler`](crate::scheduler::RealTimeScheduler), the simulator's
+//! harness in lockstep with its world on a [`VirtualScheduler`](crate::scheduler::VirtualScheduler).
+
+use super::report::{GovernorDecision, MissionLog};
+use super::sequencer::{
+    AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, SequencerInput,
+};
+use crate::bus::{Publisher, Subscriber};
+use crate::camera_source::{CameraSource, CameraSourceError};
+use crate::clock::Timestamp;
+use crate::energy::MissionModel;
+use crate::governor::{companion_power_w, Governor, GovernorEvent};
+use crate::link::{FailsafeAction, LinkError, LinkStatus, LinkUpdate, MavlinkLink, VehicleCommand};
+use crate::scheduler::{PhaseGate, SchedulerError, TaskScheduler};
+use crate::telemetry::MissionProgress;
+use crate::topics::{
+    CameraFrame, LandingSetpoint, MissionPhase, RelativeState, VehicleState, CAMERA_FRAME,
+    LANDING_SETPOINT, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
+};
+use power_models::planner::TaskLevel;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// The telemetry the loop flies on, with the rate it asks the autopilot for (MAVLink message
+/// id, Hz): PX4 sends BATTERY_STATUS at 0.5 Hz on its onboard link, ArduPilot nothing at all
+/// until asked.
+pub const TELEMETRY_STREAMS: [(u32, f64); 7] = [
+    (30, 50.0),  // ATTITUDE
+    (32, 50.0),  // LOCAL_POSITION_NED
+    (132, 20.0), // DISTANCE_SENSOR
+    (245, 5.0),  // EXTENDED_SYS_STATE
+    (147, 2.0),  // BATTERY_STATUS
+    (1, 2.0),    // SYS_STATUS
+    (33, 5.0),   // GLOBAL_POSITION_INT
+];
+/// The stream requests are sent this many times, this far apart, once the autopilot is heard
+/// (a request lost on a radio link is not fatal).
+const STREAM_REQUESTS: u32 = 3;
+const STREAM_REQUEST_PERIOD_S: f64 = 5.0;
+
+/// A landing setpoint older than this no longer steers.
+pub const SETPOINT_MAX_AGE_S: f64 = 0.5;
+/// How long a lockstep poll waits for the simulated autopilot (wall clock).
+pub const LOCKSTEP_TIMEOUT: Duration = Duration::from_secs(5);
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunnerError {
+    #[error(transparent)]
+    Scheduler(#[from] SchedulerError),
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    #[error("governor: {0}")]
+    Governor(String),
+    #[error("bus: {0}")]
+    Bus(#[from] crate::bus::BusError),
+    #[error("--fix {task}={value}: {why}")]
+    FixedLevel {
+        task: String,
+        value: f64,
+        why: String,
+    },
+}
+
+/// How the runner flies.
+#[derive(Debug, Clone, Default)]
+pub struct RunnerOptions {
+    /// Send LANDING_TARGET from the tracker's estimate, for the autopilot's own precision
+    /// landing.
+    pub landing_target: bool,
+    /// Tasks held at the level whose knob value is given (the governor leaves them alone).
+    pub fixed_levels: Vec<(String, f64)>,
+}
+
+/// What one step did.
+#[derive(Debug, Clone)]
+pub struct StepReport {
+    pub link: LinkStatus,
+    pub commands: Vec<VehicleCommand>,
+    pub events: Vec<MissionEvent>,
+    /// The landing task's setpoint that steered this step.
+    pub landing: Option<LandingSetpoint>,
+}
+
+/// The loop's state: link, governor, scheduler, sequencer, camera.
+pub struct MissionRunner<S: TaskScheduler> {
+    model: MissionModel,
+    scheduler: S,
+    governor: Governor,
+    fixed: Vec<(usize, usize)>,
+    link: MavlinkLink,
+    sequencer: MissionSequencer,
+    camera: Option<Box<dyn CameraSource>>,
+    options: RunnerOptions,
+    vehicle_topic: Publisher<VehicleState>,
+    phase_topic: Publisher<MissionPhase>,
+    frames: Publisher<CameraFrame>,
+    setpoints: Subscriber<LandingSetpoint>,
+    relative: Subscriber<RelativeState>,
+    phase: Option<usize>,
+    land_now: Option<&'static str>,
+    log: MissionLog,
+    started: bool,
+    /// Stream requests sent so far, and when the last went.
+    stream_requests: (u32, f64),
+}
+
+impl<S: TaskScheduler> MissionRunner<S> {
+    /// A runner over a built (not started) scheduler and an open link. Tasks stay suspended
+    /// until the sequencer starts the first phase.
+    pub fn new(
+        model: MissionModel,
+        scheduler: S,
+        link: MavlinkLink,
+        plan: MissionPlan,
+        camera: Option<Box<dyn CameraSource>>,
+        options: RunnerOptions,
+    ) -> Result<Self, RunnerError> {
+        let governor =
+            Governor::from_mission(&model, model.config.governor.clone().unwrap_or_default())
+                .map_err(|e| RunnerError::Governor(e.to_string()))?;
+        let fixed = resolve_fixed_levels(&model, &options.fixed_levels)?;
+        let bus = scheduler.bus().clone();
+        Ok(Self {
+            vehicle_topic: bus.publisher(VEHICLE_STATE)?,
+            phase_topic: bus.publisher(MISSION_PHASE)?,
+            frames: bus.publisher(CAMERA_FRAME)?,
+            setpoints: bus.subscriber(LANDING_SETPOINT)?,
+            relative: bus.subscriber(RELATIVE_STATE)?,
+            model,
+            scheduler,
+            governor,
+            fixed,
+            link,
+            sequencer: MissionSequencer::new(plan),
+            camera,
+            options,
+            phase: None,
+            land_now: None,
+            log: MissionLog::default(),
+            started: false,
+            stream_requests: (0, f64::NEG_INFINITY),
+        })
+    }
+
+    /// One turn of the loop at `now_s`. `lockstep`: the simulated autopilot's tick (its
+    /// TIMESYNC barrier, in ns); `None` on the wall clock.
+    pub fn step(&mut self, now_s: f64, lockstep: Option<u64>) -> Result<StepReport, RunnerError> {
+        let now = Timestamp::from_secs_f64(now_s);
+        if !self.started {
+            self.scheduler.set_phase(&PhaseGate::NoPhase);
+            self.apply_levels()?;
+            self.scheduler.start()?;
+            self.started = true;
+        }
+        let update = match lockstep {
+            Some(t_ns) => self.link.poll_lockstep(t_ns, LOCKSTEP_TIMEOUT)?,
+            None => self.link.poll(now_s),
+        };
+        let control = self.sequencer.plan().control;
+        if control && self.link.failsafe_action() == FailsafeAction::HoldThenReenter {
+            self.link.recover()?;
+        }
+        self.take_telemetry(now, &update)?;
+        self.take_frames(now_s);
+        self.scheduler.run_until(now)?;
+
+        let landing = self
+            .setpoints
+            .latest()
+            .filter(|m| now_s - m.stamp.as_secs_f64() <= SETPOINT_MAX_AGE_S)
+            .map(|m| m.value);
+        let telemetry = self.link.telemetry();
+        let view = match (telemetry.autopilot(), telemetry.position_ned_m()) {
+            (Some(status), Some(position_ned_m)) => Some(AutopilotView {
+                kind: status.kind,
+                armed: status.armed,
+                mode: status.mode,
+                landed: telemetry.vehicle_state(now_s).is_some_and(|s| s.landed),
+                position_ned_m,
+            }),
+            _ => None,
+        };
+        let (mut commands, events) = self.sequencer.step(&SequencerInput {
+            time_s: now_s,
+            link_up: update.status == LinkStatus::Connected,
+            autopilot: view,
+            landing,
+            land_now: self.land_now,
+        });
+        self.after_sequencer(now, &events)?;
+        if self.options.landing_target {
+            commands.extend(self.landing_target(now_s));
+        }
+        commands.extend(self.stream_requests(now_s));
+        for command in &commands {
+            self.link.send(command)?;
+        }
+        if let Some(t_ns) = lockstep {
+            self.link.end_tick(t_ns)?;
+        }
+        Ok(StepReport {
+            link: update.status,
+            commands,
+            events,
+            landing,
+        })
+    }
+
+    /// Ends the mission early (time up, Ctrl-C): lands the vehicle where it is if qosrt holds
+    /// control. The caller keeps stepping until [`MissionStatus::finished`].
+    pub fn request_landing(&mut self, now_s: f64, reason: &str) -> Result<(), RunnerError> {
+        let (commands, events) = self.sequencer.request_landing(reason);
+        for event in &events {
+            self.log.event(now_s, describe_mission(event));
+        }
+        for command in &commands {
+            self.link.send(command)?;
+        }
+        Ok(())
+    }
+
+    /// Stops the tasks; statistics stay readable.
+    pub fn stop(&mut self) {
+        self.scheduler.stop();
+    }
+
+    pub fn status(&self) -> MissionStatus {
+        self.sequencer.status()
+    }
+
+    pub fn scheduler(&self) -> &S {
+        &self.scheduler
+    }
+
+    pub fn link(&self) -> &MavlinkLink {
+        &self.link
+    }
+
+    pub fn governor(&self) -> &Governor {
+        &self.governor
+    }
+
+    pub fn model(&self) -> &MissionModel {
+        &self.model
+    }
+
+    pub fn log(&self) -> &MissionLog {
+        &self.log
+    }
+
+    /// Adds a line to the mission's log (the harness's world events, faults).
+    pub fn note(&mut self, time_s: f64, what: String) {
+        self.log.event(time_s, what);
+    }
+
+    /// The companion computer's modelled power now: the phase's power model at the levels in
+    /// force of the tasks that run in it; nothing before the first phase.
+    pub fn companion_power_w(&self) -> f64 {
+        let Some(phase) = self.phase else {
+            return 0.0;
+        };
+        let levels = self.effective_levels(phase);
+        companion_power_w(self.governor.problem(), phase, &levels).unwrap_or(0.0)
+    }
+
+    fn take_telemetry(&mut self, now: Timestamp, update: &LinkUpdate) -> Result<(), RunnerError> {
+        let now_s = now.as_secs_f64();
+        if let Some(state) = update.vehicle_state {
+            self.vehicle_topic.publish(now, state);
+        }
+        if let Some(status) = update.autopilot {
+            self.log.autopilot(now_s, &status);
+        }
+        let Some(sample) = update.battery else {
+            return Ok(());
+        };
+        self.log.battery(sample);
+        let status = self.sequencer.status();
+        let progress = status.phase.map_or(MissionProgress::start(), |p| {
+            MissionProgress::new(p, now_s - status.phase_started_s)
+        });
+        match self.governor.update(&sample, progress) {
+            Ok(decisions) => {
+                for event in decisions {
+                    if let GovernorEvent::LandNow(_) = &event {
+                        self.land_now = Some("the battery cannot reach the end of the mission");
+                    }
+                    let description = event.describe(&self.model.config.tasks);
+                    tracing::info!(time_s = now_s, "governor: {description}");
+                    self.log.governor(GovernorDecision::from_event(
+                        now_s,
+                        &event,
+                        &self.model.config.tasks,
+                        description,
+                    ));
+                }
+                self.apply_levels()?;
+            }
+            Err(error) => {
+                self.log.telemetry_refused += 1;
+                self.log.event(now_s, format!("telemetry refused: {error}"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Every frame the camera has ready, published at its capture time.
+    fn take_frames(&mut self, now_s: f64) {
+        let Some(camera) = self.camera.as_mut() else {
+            return;
+        };
+        loop {
+            match camera.next_frame(now_s) {
+                Ok(Some(captured)) => {
+                    self.log.frames += 1;
+                    let capture_s = captured.capture_time_s.min(now_s);
+                    self.frames
+                        .publish(Timestamp::from_secs_f64(capture_s.max(0.0)), captured.frame);
+                }
+                Ok(None) => break,
+                Err(error @ CameraSourceError::Ended { .. }) => {
+                    self.log.event(now_s, format!("camera: {error}"));
+                    self.camera = None;
+                    break;
+                }
+                Err(error) => {
+                    self.log.camera_errors += 1;
+                    tracing::warn!(%error, "camera frame lost");
+                    self.log.event(now_s, format!("camera: {error}"));
+                    break;
+                }
+            }
+        }
+    }
+
+    /// Phase changes: the scheduler runs the new phase's tasks, the plugins hear of it, the
+    /// levels follow the plan for it.
+    fn after_sequencer(
+        &mut self,
+        now: Timestamp,
+        events: &[MissionEvent],
+    ) -> Result<(), RunnerError> {
+        let now_s = now.as_secs_f64();
+        for event in events {
+            let line = describe_mission(event);
+            tracing::info!(time_s = now_s, "mission: {line}");
+            self.log.event(now_s, line);
+        }
+        let status = self.sequencer.status();
+        let phase = if status.finished { None } else { status.phase };
+        if phase == self.phase {
+            return Ok(());
+        }
+        self.phase = phase;
+        let phases = &self.model.config.mission.phases;
+        match phase {
+            Some(index) => {
+                let name = phases[index].name.clone();
+                self.phase_topic.publish(
+                    now,
+                    MissionPhase {
+                        index,
+                        name: Arc::from(name.as_str()),
+                        landing: index + 1 == phases.len(),
+                    },
+                );
+                self.scheduler.set_phase(&PhaseGate::Phase(name));
+            }
+            None => self.scheduler.set_phase(&PhaseGate::NoPhase),
+        }
+        self.apply_levels()
+    }
+
+    /// MAV_CMD_SET_MESSAGE_INTERVAL for every stream the loop needs, once the autopilot is heard.
+    fn stream_requests(&mut self, now_s: f64) -> Vec<VehicleCommand> {
+        let (sent, last_s) = self.stream_requests;
+        let heard = self.link.telemetry().autopilot().is_some();
+        if !heard || sent >= STREAM_REQUESTS || now_s - last_s < STREAM_REQUEST_PERIOD_S {
+            return Vec::new();
+        }
+        self.stream_requests = (sent + 1, now_s);
+        TELEMETRY_STREAMS
+            .iter()
+            .map(
+                |&(message_id, rate_hz)| VehicleCommand::SetMessageInterval {
+                    message_id,
+                    interval_us: (1e6 / rate_hz).round() as i64,
+                },
+            )
+            .collect()
+    }
+
+    /// LANDING_TARGET from the tracker's latest fix: the pad's direction in the body frame
+    /// (angles off the down axis) and its distance.
+    fn landing_target(&mut self, now_s: f64) -> Option<VehicleCommand> {
+        let relative = self.relative.take_new()?.value;
+        let fix_s = relative.last_fix_time_s?;
+        if now_s - fix_s > SETPOINT_MAX_AGE_S {
+            return None;
+        }
+        let attitude = self.link.telemetry().vehicle_state(now_s)?.attitude;
+        let pad_from_uav_ned = -relative.estimate.uav_relative_ned_m;
+        let body = attitude.ned_to_body_frd(&pad_from_uav_ned);
+        if body.z <= 0.0 {
+            return None;
+        }
+        Some(VehicleCommand::LandingTarget {
+            angle_x_rad: body.y.atan2(body.z),
+            angle_y_rad: (-body.x).atan2(body.z),
+            distance_m: body.norm(),
+            size_x_rad: 0.0,
+            size_y_rad: 0.0,
+            time_usec: (fix_s.max(0.0) * 1e6) as u64,
+        })
+    }
+
+    /// The governor's levels for `phase` with the fixed ones put in.
+    fn effective_levels(&self, phase: usize) -> Vec<TaskLevel> {
+        let mut levels = self
+            .governor
+            .phase_levels(phase)
+            .map(<[_]>::to_vec)
+            .unwrap_or_default();
+        for level in &mut levels {
+            if let Some(&(_, fixed)) = self.fixed.iter().find(|(task, _)| *task == level.task) {
+                level.level = fixed;
+            }
+        }
+        levels
+    }
+
+    /// Sets every scheduled task to the level in force: fixed, else the governor's.
+    fn apply_levels(&mut self) -> Result<(), RunnerError> {
+        let mut wanted: Vec<(usize, usize)> = self
+            .governor
+            .current_levels()
+            .iter()
+            .map(|l| (l.task, l.level))
+            .collect();
+        for &(task, level) in &self.fixed {
+            match wanted.iter_mut().find(|(t, _)| *t == task) {
+                Some(entry) => entry.1 = level,
+                None => wanted.push((task, level)),
+            }
+        }
+        for (task, level) in wanted {
+            let name = &self.model.config.tasks[task].name;
+            if let Some(current) = self.scheduler.level(name) {
+                if current != level {
+                    self.scheduler.set_level(name, level)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `(task index, level index)` for every `--fix TASK=VALUE`.
+fn resolve_fixed_levels(
+    model: &MissionModel,
+    fixed: &[(String, f64)],
+) -> Result<Vec<(usize, usize)>, RunnerError> {
+    fixed
+        .iter()
+        .map(|(name, value)| {
+            let error = |why: String| RunnerError::FixedLevel {
+                task: name.clone(),
+                value: *value,
+                why,
+            };
+            let tasks = &model.config.tasks;
+            let task = tasks.iter().position(|t| &t.name == name).ok_or_else(|| {
+                let known: Vec<&str> = tasks.iter().map(|t| t.name.as_str()).collect();
+                error(format!("no such task; the tasks are {}", known.join(", ")))
+            })?;
+            let levels = &tasks[task].levels;
+            let level = levels
+                .iter()
+                .position(|v| (v - value).abs() <= 1e-9 * v.abs().max(1.0))
+                .ok_or_else(|| error(format!("not one of the task's levels {levels:?}")))?;
+            Ok((task, level))
+        })
+        .collect()
+}
+
+/// A mission event in one line.
+pub fn describe_mission(event: &MissionEvent) -> String {
+    match event {
+        MissionEvent::Armed => "armed".into(),
+        MissionEvent::TookOff => "took off".into(),
+        MissionEvent::OffboardEngaged => "offboard engaged".into(),
+        MissionEvent::PhaseStarted { name, .. } => format!("phase {name} started"),
+        MissionEvent::LinkLost => "MAVLink link lost: failsafe (autopilot holds)".into(),
+        MissionEvent::LinkRestored => "MAVLink link restored".into(),
+        MissionEvent::LandNow { reason } => format!("land now: {reason}"),
+        MissionEvent::Touchdown => "touchdown".into(),
+        MissionEvent::Aborted { reason } => format!("mission aborted: {reason}"),
+        MissionEvent::TakenOver { mode } => {
+            format!("control taken over (mode {mode:?}): qosrt stopped commanding")
+        }
+        MissionEvent::LandingHere { reason } => format!("landing where the vehicle is: {reason}"),
+        MissionEvent::Disarmed => "landed and disarmed".into(),
+    }
+}

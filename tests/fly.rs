@@ -1,0 +1,301 @@
+//! `qosrt run --mavlink` against the real PX4 v1.16.0 SITL (SIH quadrotor) in `../shared/px4-sitl/`:
+//! it flies with `--control`, stays passive without it, and lets go when a ground station takes
+//! the vehicle over. Each test runs its own PX4 instance, so they run side by side.
+
+mod common;
+use common::repo_root;
+
+use serde_json::Value;
+use std::io::{BufRead, BufReader};
+use std::net::UdpSocket;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// A running PX4 SITL instance, stopped when dropped.
+struct Px4 {
+    pid: u32,
+    instance: u8,
+}
+
+impl Px4 {
+    /// Starts instance `instance`, or `None` (with a message) when the SITL is not here.
+    fn start(instance: u8) -> Option<Self> {
+        let start = repo_root().join("../shared/px4-sitl/start");
+        if !start.exists() {
+            eprintln!("skipped: {} is absent", start.display());
+            return None;
+        }
+        let output = Command::new(&start)
+            .args(["-i", &instance.to_string()])
+            .output()
+            .expect("the PX4 start script runs");
+        assert!(
+            output.status.success(),
+            "PX4 did not start: {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        let pid = String::from_utf8_lossy(&output.stdout)
+            .trim()
+            .parse()
+            .expect("the start script prints PX4's pid");
+        Some(Self { pid, instance })
+    }
+
+    /// The companion computer's link, as `qosrt run` takes it.
+    fn mavlink(&self) -> String {
+        format!("udpin:0.0.0.0:{}", 14540 + u16::from(self.instance))
+    }
+}
+
+impl Drop for Px4 {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").arg(self.pid.to_string()).status();
+    }
+}
+
+/// The reference mission, made short: 4 s of tracking.
+fn short_mission(dir: &Path, tracking_s: f64) -> PathBuf {
+    let text = std::fs::read_to_string(repo_root().join("qos.toml")).unwrap();
+    let text = text
+        .replace("duration_s = 900.0", &format!("duration_s = {tracking_s}"))
+        .replace(
+            "path = \"profiles/",
+            &format!("path = \"{}/profiles/", repo_root().display()),
+        );
+    let path = dir.join("short.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn qosrt_run(config: &Path, args: &[&str]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_qosrt"))
+        .arg("run")
+        .arg(config)
+        .args(args)
+        .current_dir(repo_root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("qosrt runs")
+}
+
+/// Waits for qosrt to exit (killing it after `limit`) and parses its JSON report; stderr is
+/// handed back for messages.
+fn report_of(mut child: Child, limit: Duration) -> (Value, String) {
+    let started = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if started.elapsed() > limit {
+            let _ = child.kill();
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let output = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+    let report = serde_json::from_slice(&output.stdout).unwrap_or_else(|e| {
+        panic!(
+            "no JSON report ({e}), exit {:?}; stderr:\n{stderr}",
+            output.status
+        )
+    });
+    (report, stderr)
+}
+
+fn event_lines(report: &Value) -> Vec<String> {
+    report["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e[1].as_str().unwrap().to_string())
+        .collect()
+}
+
+fn modes(report: &Value) -> Vec<(String, bool)> {
+    report["modes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| {
+            (
+                m["mode"].as_str().unwrap().to_string(),
+                m["armed"].as_bool().unwrap(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn flies_px4_through_offboard_and_lands_it_with_auto_land() {
+    let Some(px4) = Px4::start(1) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let config = short_mission(dir.path(), 4.0);
+    let child = qosrt_run(
+        &config,
+        &[
+            "--mavlink",
+            &px4.mavlink(),
+            "--control",
+            "--meeting-point-ne-m",
+            "5,0",
+            "--duration-s",
+            "150",
+            "--json",
+        ],
+    );
+    let (report, stderr) = report_of(child, Duration::from_secs(200));
+    let events = event_lines(&report);
+    assert_eq!(report["autopilot"], "PX4", "{stderr}");
+    assert_eq!(report["finished"], true, "{events:?}\n{stderr}");
+    let order = [
+        "armed",
+        "took off",
+        "phase transit started",
+        "offboard engaged",
+        "phase tracking started",
+        "phase landing started",
+        "landing where the vehicle is: no camera: the autopilot lands where the vehicle is",
+        "landed and disarmed",
+    ];
+    let positions: Vec<Option<usize>> = order
+        .iter()
+        .map(|wanted| events.iter().position(|e| e == wanted))
+        .collect();
+    assert!(positions.iter().all(Option::is_some), "{events:?}");
+    assert!(positions.windows(2).all(|p| p[0] < p[1]), "{events:?}");
+    let modes = modes(&report);
+    assert!(modes.contains(&("Offboard".into(), true)), "{modes:?}");
+    assert!(modes.contains(&("Land".into(), true)), "{modes:?}");
+    assert_eq!(
+        modes.last().map(|m| m.1),
+        Some(false),
+        "disarmed at the end"
+    );
+    // BATTERY_STATUS at the 2 Hz asked for, not PX4's default 0.5 Hz.
+    let battery = report["messages_received"]["BATTERY_STATUS"]
+        .as_f64()
+        .unwrap();
+    let wall_s = report["wall_s"].as_f64().unwrap();
+    assert!(
+        battery / wall_s > 1.5,
+        "{battery} BATTERY_STATUS in {wall_s} s"
+    );
+    assert!(report["battery"]["samples"].as_u64().unwrap() > 10);
+}
+
+#[test]
+fn without_control_px4_stays_disarmed() {
+    let Some(px4) = Px4::start(2) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let config = short_mission(dir.path(), 4.0);
+    let child = qosrt_run(
+        &config,
+        &["--mavlink", &px4.mavlink(), "--duration-s", "8", "--json"],
+    );
+    let (report, stderr) = report_of(child, Duration::from_secs(30));
+    assert_eq!(report["autopilot"], "PX4", "{stderr}");
+    assert_eq!(report["control"], false);
+    let modes = modes(&report);
+    assert!(!modes.is_empty());
+    assert!(modes.iter().all(|(_, armed)| !armed), "{modes:?}");
+    let events = event_lines(&report);
+    assert!(
+        !events
+            .iter()
+            .any(|e| e == "armed" || e.starts_with("phase")),
+        "{events:?}"
+    );
+    // It still listens and asks for its telemetry.
+    assert!(report["messages_received"]["ATTITUDE"].as_u64().unwrap() > 100);
+}
+
+#[test]
+fn a_ground_station_taking_px4_over_stops_qosrt_commanding() {
+    let Some(px4) = Px4::start(3) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let config = short_mission(dir.path(), 60.0);
+    let mut child = qosrt_run(
+        &config,
+        &[
+            "--mavlink",
+            &px4.mavlink(),
+            "--control",
+            "--duration-s",
+            "50",
+            "--json",
+        ],
+    );
+    // Wait (on qosrt's log) for the tracking phase: qosrt holds OFFBOARD.
+    let stderr = child.stderr.take().unwrap();
+    let (lines_tx, lines_rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let _ = lines_tx.send(line);
+        }
+    });
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut log = Vec::new();
+    while !log
+        .iter()
+        .any(|l: &String| l.contains("phase tracking started"))
+    {
+        assert!(
+            Instant::now() < deadline,
+            "never reached tracking: {log:#?}"
+        );
+        if let Ok(line) = lines_rx.recv_timeout(Duration::from_secs(1)) {
+            log.push(line);
+        }
+    }
+    // A ground station (system 255) switches PX4 to AUTO.LOITER on its own link.
+    let gcs = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let set_loiter = mavlink::dialects::common::MavMessage::COMMAND_LONG(
+        mavlink::dialects::common::COMMAND_LONG_DATA {
+            // PX4 SITL instance i is system i + 1.
+            target_system: px4.instance + 1,
+            target_component: 1,
+            command: mavlink::dialects::common::MavCmd::MAV_CMD_DO_SET_MODE,
+            param1: 1.0,
+            param2: 4.0,
+            param3: 3.0,
+            ..Default::default()
+        },
+    );
+    let mut bytes = Vec::new();
+    mavlink::write_versioned_msg(
+        &mut bytes,
+        mavlink::MavlinkVersion::V2,
+        mavlink::MavHeader {
+            system_id: 255,
+            component_id: 190,
+            sequence: 0,
+        },
+        &set_loiter,
+    )
+    .unwrap();
+    let px4_gcs_port = 18570 + u16::from(px4.instance);
+    gcs.send_to(&bytes, ("127.0.0.1", px4_gcs_port)).unwrap();
+    let output = child.wait_with_output().unwrap();
+    let report: Value = serde_json::from_slice(&output.stdout).expect("a JSON report");
+    let events = event_lines(&report);
+    let taken = events
+        .iter()
+        .position(|e| e.starts_with("control taken over"))
+        .unwrap_or_else(|| panic!("no takeover: {events:?}"));
+    // Nothing qosrt commands after the takeover: no landing of its own, no offboard again.
+    assert!(
+        !events[taken..]
+            .iter()
+            .any(|e| e.starts_with("landing where") || e == "offboard engaged"),
+        "{events:?}"
+    );
+    let modes = modes(&report);
+    let loiter = modes
+        .iter()
+        .rposition(|(mode, _)| mode == "Hold")
+        .unwrap_or_else(|| panic!("PX4 never loitered: {modes:?}"));
+    assert!(
+        modes[loiter..].iter().all(|(mode, _)| mode != "Offboard"),
+        "{modes:?}"
+    );
+}
