@@ -7,9 +7,9 @@ use runtime::config::load_file;
 use runtime::energy::{load_mission_model, MissionModel};
 use runtime::plugins::builtin_registry;
 use runtime::registry::PluginRegistry;
-use sim::mission::{simulate, Faults, SimOptions, WindKind};
 use sim::outcome::{SimOutcome, SimSummary};
 use sim::tractor::PathKind;
+use sitl::mission::{simulate, Faults, SimOptions, WindKind};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 

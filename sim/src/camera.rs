@@ -21,7 +21,6 @@ use algorithms::vision::render::{
     render, ImageEffects, MotionBlur, RenderError, RenderOptions, SplitMix64,
 };
 use nalgebra::Vector3;
-use runtime::topics::CameraFrame;
 use thiserror::Error;
 
 use crate::scene::{SceneError, SimScene};
@@ -64,6 +63,14 @@ pub enum CameraError {
     Scene(#[from] SceneError),
     #[error(transparent)]
     Render(#[from] RenderError),
+}
+
+/// One frame as the camera hands it out: its number (frames it dropped leave gaps) and the
+/// image, shared so that a frozen camera repeats it without a copy.
+#[derive(Debug, Clone)]
+pub struct SimFrame {
+    pub frame_index: u64,
+    pub image: Arc<GrayImage>,
 }
 
 /// How the simulated camera is built.
@@ -304,13 +311,13 @@ impl SimCamera {
         .map(|frame| Arc::unwrap_or_clone(frame.image))
     }
 
-    /// As [`Self::capture`], as the runtime's camera topic message (frame index and shared image).
+    /// As [`Self::capture`], numbered and shared: what the camera hands out, as a real one does.
     pub fn capture_frame(
         &mut self,
         time_s: f64,
         vehicle: &VehiclePose,
         scene: &SimScene,
-    ) -> Result<CameraFrame, CameraError> {
+    ) -> Result<SimFrame, CameraError> {
         self.capture_shared(time_s, vehicle, scene)
     }
 
@@ -319,7 +326,7 @@ impl SimCamera {
         time_s: f64,
         vehicle: &VehiclePose,
         scene: &SimScene,
-    ) -> Result<CameraFrame, CameraError> {
+    ) -> Result<SimFrame, CameraError> {
         let a = &vehicle.attitude;
         let finite = time_s.is_finite()
             && vehicle.position_ned_m.iter().all(|x| x.is_finite())
@@ -339,7 +346,7 @@ impl SimCamera {
         }
         if self.frozen.iter().any(|w| w.contains(time_s)) {
             if let Some(image) = &self.last_image {
-                return Ok(CameraFrame {
+                return Ok(SimFrame {
                     frame_index,
                     image: Arc::clone(image),
                 });
@@ -355,7 +362,7 @@ impl SimCamera {
         let effects = self.effects(time_s, frame_index, vehicle, &pose);
         let image = Arc::new(post_process(&clean, &effects)?);
         self.last_image = Some(Arc::clone(&image));
-        Ok(CameraFrame { frame_index, image })
+        Ok(SimFrame { frame_index, image })
     }
 
     /// Brightness, contrast, noise and motion blur for one frame.

@@ -1,12 +1,11 @@
-//! The built-in simulator: multirotor, tractor, wind, battery, downward camera and a MAVLink
-//! autopilot, speaking to the runtime only through MAVLink and camera frames.
+//! The built-in simulator's world: multirotor, tractor, wind, battery, downward camera and a
+//! PX4-like MAVLink autopilot. It knows nothing of the runtime: like a real vehicle it speaks
+//! MAVLink and hands out camera frames; the `sitl` crate couples it to the runtime.
 
 pub mod autopilot;
 pub mod camera;
 pub mod flight;
 pub mod hazard_dataset;
-pub mod hazard_score;
-pub mod mission;
 pub mod outcome;
 pub mod power;
 pub mod scene;

@@ -13,8 +13,6 @@
 //! with `k` (electrical/mechanical efficiency factor) chosen so that `P(0, 0)` equals the
 //! configured hover power. Descent recovers nothing (`w < 0` adds no power and takes none).
 
-use power_models::battery::BatterySpec;
-
 /// Air density at sea level, kg/m³.
 const AIR_DENSITY_KG_M3: f64 = 1.225;
 const GRAVITY_M_S2: f64 = 9.81;
@@ -91,10 +89,92 @@ impl RotorPowerModel {
     }
 }
 
+/// A LiPo cell's resting voltage against its state of charge: the world's own curve (the
+/// runtime's battery model is a separate estimate of it, as on a real vehicle).
+const LIPO_CELL_OCV: [(f64, f64); 12] = [
+    (0.00, 3.27),
+    (0.05, 3.61),
+    (0.10, 3.69),
+    (0.20, 3.73),
+    (0.30, 3.77),
+    (0.40, 3.79),
+    (0.50, 3.83),
+    (0.60, 3.87),
+    (0.70, 3.94),
+    (0.80, 4.01),
+    (0.90, 4.10),
+    (1.00, 4.20),
+];
+
+/// The physical pack: capacity, cells in series and internal resistance; terminal voltage
+/// `n·OCV(soc) − I·R`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimPack {
+    pub capacity_mah: f64,
+    pub cell_count: u32,
+    pub internal_resistance_ohm: f64,
+}
+
+impl SimPack {
+    pub fn new(
+        capacity_mah: f64,
+        cell_count: u32,
+        internal_resistance_ohm: f64,
+    ) -> Result<Self, PowerError> {
+        for (name, value) in [
+            ("capacity_mah", capacity_mah),
+            ("cell_count", f64::from(cell_count)),
+            ("internal_resistance_ohm", internal_resistance_ohm),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(PowerError::Invalid { name, value });
+            }
+        }
+        Ok(Self {
+            capacity_mah,
+            cell_count,
+            internal_resistance_ohm,
+        })
+    }
+
+    pub fn capacity_ah(&self) -> f64 {
+        self.capacity_mah / 1000.0
+    }
+
+    /// Open-circuit voltage of the pack at `soc` (clamped to [0, 1]).
+    pub fn pack_ocv_v(&self, soc: f64) -> f64 {
+        let soc = soc.clamp(0.0, 1.0);
+        let upper = LIPO_CELL_OCV
+            .iter()
+            .position(|&(s, _)| s >= soc)
+            .unwrap_or(LIPO_CELL_OCV.len() - 1)
+            .max(1);
+        let (s0, v0) = LIPO_CELL_OCV[upper - 1];
+        let (s1, v1) = LIPO_CELL_OCV[upper];
+        f64::from(self.cell_count) * (v0 + (v1 - v0) * (soc - s0) / (s1 - s0))
+    }
+
+    pub fn terminal_voltage_v(&self, soc: f64, current_a: f64) -> f64 {
+        self.pack_ocv_v(soc) - current_a * self.internal_resistance_ohm
+    }
+
+    /// The current that delivers `power_w` at `soc`: the small root of `E·I − R·I² = P`;
+    /// `None` beyond the pack's maximum power `E²/4R`.
+    pub fn current_for_power_a(&self, soc: f64, power_w: f64) -> Option<f64> {
+        if !(power_w.is_finite() && power_w >= 0.0 && soc.is_finite()) {
+            return None;
+        }
+        let e = self.pack_ocv_v(soc);
+        let disc = e * e - 4.0 * self.internal_resistance_ohm * power_w;
+        // 2P / (E + √disc) avoids the cancellation of (E − √disc) / 2R.
+        (disc >= 0.0).then(|| 2.0 * power_w / (e + disc.sqrt()))
+    }
+}
+
 /// The pack as the simulation drains it; the autopilot's measurements come from here.
 #[derive(Debug, Clone)]
 pub struct SimBattery {
-    spec: BatterySpec,
+    spec: SimPack,
     soc: f64,
     consumed_mah: f64,
     current_a: f64,
@@ -104,7 +184,7 @@ pub struct SimBattery {
 
 impl SimBattery {
     /// A full pack.
-    pub fn new(spec: BatterySpec) -> Self {
+    pub fn new(spec: SimPack) -> Self {
         Self {
             spec,
             soc: 1.0,
@@ -214,11 +294,22 @@ mod tests {
         assert!((fast - v_h * v_h / 100.0).abs() < 1e-3 * fast);
     }
 
+    #[test]
+    fn the_pack_voltage_follows_the_cell_curve() {
+        let pack = SimPack::new(5000.0, 4, 0.025).unwrap();
+        assert!((pack.pack_ocv_v(1.0) - 16.8).abs() < 1e-12);
+        assert!((pack.pack_ocv_v(0.0) - 13.08).abs() < 1e-12);
+        // Halfway between 50 % (3.83 V) and 60 % (3.87 V).
+        assert!((pack.pack_ocv_v(0.55) - 4.0 * 3.85).abs() < 1e-12);
+        assert!((pack.terminal_voltage_v(0.55, 20.0) - (15.4 - 0.5)).abs() < 1e-12);
+        assert!(SimPack::new(0.0, 4, 0.025).is_err());
+    }
+
     /// Draining at constant power uses the energy the OCV curve holds between the two states
     /// of charge, plus the resistive loss: compare with a fine independent integration.
     #[test]
     fn the_pack_drains_as_its_model_says() {
-        let spec = BatterySpec::from_capacity_mah(5000.0, 4, 3.7, 0.025).unwrap();
+        let spec = SimPack::new(5000.0, 4, 0.025).unwrap();
         let mut pack = SimBattery::new(spec.clone());
         for _ in 0..6000 {
             pack.drain(160.0, 10.0, 0.1).unwrap();

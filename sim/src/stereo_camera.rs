@@ -21,7 +21,6 @@ use algorithms::vision::camera::{CameraError as ModelError, PinholeCamera};
 use algorithms::vision::image::DepthImage;
 use algorithms::vision::render::{render_depth, RenderError, SplitMix64};
 use nalgebra::Vector3;
-use runtime::topics::DepthFrame;
 use thiserror::Error;
 
 use crate::camera::SimCamera;
@@ -44,6 +43,13 @@ pub enum StereoCameraError {
     Scene(#[from] SceneError),
     #[error(transparent)]
     Render(#[from] RenderError),
+}
+
+/// A depth frame as the stereo camera hands it out, numbered like the camera frame it goes with.
+#[derive(Debug, Clone)]
+pub struct SimDepthFrame {
+    pub frame_index: u64,
+    pub image: Arc<DepthImage>,
 }
 
 /// The stereo camera's geometry and noise.
@@ -198,7 +204,7 @@ impl SimStereoCamera {
         position_ned_m: &Vector3<f64>,
         attitude: &Attitude,
         scene: &SimScene,
-    ) -> Result<DepthFrame, StereoCameraError> {
+    ) -> Result<SimDepthFrame, StereoCameraError> {
         let finite = position_ned_m.iter().all(|x| x.is_finite())
             && [attitude.roll_rad, attitude.pitch_rad, attitude.yaw_rad]
                 .iter()
@@ -210,7 +216,7 @@ impl SimStereoCamera {
         let visible = scene.visible_scene(&self.model, &pose)?;
         let mut depth = render_depth(&self.model, &pose, &visible)?;
         self.add_stereo_noise(&mut depth, frame_index);
-        Ok(DepthFrame {
+        Ok(SimDepthFrame {
             frame_index,
             image: Arc::new(depth),
         })

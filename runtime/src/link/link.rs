@@ -668,7 +668,11 @@ mod tests {
 
     #[test]
     fn lockstep_barrier_from_the_future_is_an_error() {
-        let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+        let config = LinkConfig {
+            target_system_id: Some(1),
+            ..LinkConfig::default()
+        };
+        let mut link = MavlinkLink::bind_local_ephemeral(config).unwrap();
         let autopilot = RawAutopilot::new(link.local_addr().unwrap(), 1);
         autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA {
             tc1: 0,

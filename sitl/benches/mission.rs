@@ -4,13 +4,13 @@
 //! this mission, where the camera renders a fifth as often — so the ratio is what the
 //! vision loop costs the simulator.
 //!
-//! `cargo bench -p sim --bench mission`
+//! `cargo bench -p sitl --bench mission`
 
 use runtime::catalog::PluginCatalog;
 use runtime::config::load_file;
 use runtime::energy::load_mission_model;
 use runtime::plugins::builtin_registry;
-use sim::mission::{simulate, SimOptions};
+use sitl::mission::{simulate, SimOptions};
 use std::path::Path;
 use std::time::Instant;
 

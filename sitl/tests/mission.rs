@@ -5,9 +5,9 @@ use runtime::config::load_file;
 use runtime::energy::{load_mission_model, MissionModel};
 use runtime::plugins::builtin_registry;
 use runtime::registry::PluginRegistry;
-use sim::mission::{simulate, Faults, SimOptions};
 use sim::outcome::SimOutcome;
 use sim::tractor::PathKind;
+use sitl::mission::{simulate, Faults, SimOptions};
 use std::path::Path;
 
 fn reference() -> (MissionModel, PluginRegistry) {

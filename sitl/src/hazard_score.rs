@@ -2,8 +2,8 @@
 //! class was placed within [`MATCH_RADIUS_M`] of its true position on the ground. Pure
 //! bookkeeping; the mission loop feeds it the reports.
 
-use crate::scene::{Hazard, HazardClass};
 use runtime::topics::HazardReport;
+use sim::scene::{Hazard, HazardClass};
 use std::collections::BTreeSet;
 
 /// The seed's criterion: within 2 m of the true position.

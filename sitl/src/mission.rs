@@ -10,16 +10,7 @@
 //! applies them; physics moves on. Nothing depends on the host's speed, so the same config and
 //! seed fly the same mission.
 
-use crate::autopilot::MavlinkAutopilot;
-use crate::camera::{SimCamera, SimCameraConfig, VehiclePose};
 use crate::hazard_score::HazardScore;
-use crate::outcome::{LocalisationAccumulator, QosChange, SimOutcome, TrackSample};
-use crate::power::{RotorPowerModel, SimBattery};
-use crate::scene::{HazardField, PadPose, SimScene, TrackScatterConfig, TractorBody};
-use crate::stereo_camera::{SimStereoCamera, StereoCameraConfig};
-use crate::tractor::{PathKind, Tractor, TractorParams};
-use crate::vehicle::{Multirotor, VehicleParams};
-use crate::wind::{Wind, WindConfig};
 use nalgebra::Vector3;
 use runtime::camera_source::{CapturedFrame, MemorySource};
 use runtime::clock::Timestamp;
@@ -30,8 +21,17 @@ use runtime::mission::{MissionEvent, MissionPlan, MissionRunner, RunnerError, Ru
 use runtime::registry::PluginRegistry;
 use runtime::scheduler::SchedulerBuilder;
 use runtime::topics::{
-    DepthFrame, HazardReport, RelativeState, DEPTH_FRAME, HAZARDS, RELATIVE_STATE,
+    CameraFrame, DepthFrame, HazardReport, RelativeState, DEPTH_FRAME, HAZARDS, RELATIVE_STATE,
 };
+use sim::autopilot::MavlinkAutopilot;
+use sim::camera::{SimCamera, SimCameraConfig, VehiclePose};
+use sim::outcome::{LocalisationAccumulator, QosChange, SimOutcome, TrackSample};
+use sim::power::{RotorPowerModel, SimBattery, SimPack};
+use sim::scene::{HazardField, PadPose, SimScene, TrackScatterConfig, TractorBody};
+use sim::stereo_camera::{SimStereoCamera, StereoCameraConfig};
+use sim::tractor::{PathKind, Tractor, TractorParams};
+use sim::vehicle::{Multirotor, VehicleParams};
+use sim::wind::{Wind, WindConfig};
 use std::time::Instant;
 
 /// One lockstep tick.
@@ -198,7 +198,14 @@ pub fn simulate(
         .with_tractor_body(TractorBody::default())
         .map_err(|e| setup(&e))?
         .with_hazards(hazards);
-    let pack = model.battery_spec(None).map_err(|e| setup(&e))?;
+    // The world's pack has the config's capacity, cells and resistance.
+    let spec = model.battery_spec(None).map_err(|e| setup(&e))?;
+    let pack = SimPack::new(
+        spec.capacity_mah,
+        spec.cell_count,
+        spec.internal_resistance_ohm,
+    )
+    .map_err(|e| setup(&e))?;
     let mut battery = SimBattery::new(pack);
     // Without a hover figure in the config, the tracking phase's flight power stands in.
     let hover_power_w = config
@@ -341,7 +348,10 @@ pub fn simulate(
                     Ok(frame) => {
                         let frame_index = frame.frame_index;
                         frames.push(CapturedFrame {
-                            frame,
+                            frame: CameraFrame {
+                                frame_index,
+                                image: frame.image,
+                            },
                             capture_time_s: now.as_secs_f64(),
                         });
                         if let Some((stereo, depth_frames)) = stereo.as_mut() {
@@ -352,7 +362,13 @@ pub fn simulate(
                                 &scene,
                             ) {
                                 Ok(depth) => {
-                                    depth_frames.publish(now, depth);
+                                    depth_frames.publish(
+                                        now,
+                                        DepthFrame {
+                                            frame_index: depth.frame_index,
+                                            image: depth.image,
+                                        },
+                                    );
                                 }
                                 Err(error) => {
                                     events.push((time_s, format!("stereo camera: {error}")))
@@ -599,7 +615,7 @@ const LOCALISATION_MAX_FIX_GAP_S: f64 = 1.0;
 fn future_track_ne_m(
     tractor: &Tractor,
     duration_s: f64,
-) -> Result<Vec<[f64; 2]>, crate::tractor::TractorError> {
+) -> Result<Vec<[f64; 2]>, sim::tractor::TractorError> {
     const SAMPLE_S: f64 = 0.5;
     let mut ahead = tractor.clone();
     let mut track = vec![ahead.pose().position_ne_m.into()];

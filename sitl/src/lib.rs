@@ -1,0 +1,9 @@
+//! Software in the loop: the harness that couples the simulated world (`sim`, which knows
+//! nothing of the runtime) to the qosrt runtime's mission runner. The world speaks to the
+//! runtime only as a real vehicle does: MAVLink over UDP and camera frames.
+//!
+//! [`mission::simulate`] flies one mission in lockstep: a virtual clock advanced tick by tick
+//! with the world, deterministic for a seed and faster than real time.
+
+pub mod hazard_score;
+pub mod mission;
