@@ -174,17 +174,20 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
             "observe mode: no arming, no mode change, no setpoint"
         }
     );
+    // The loop runs on the scheduler's clock, the one the tasks stamp their messages with.
+    let clock_start_s = runner.scheduler().now().as_secs_f64();
     let started = Instant::now();
     let mut stop_asked_s: Option<f64> = None;
     let mut timed_out = false;
     loop {
-        let now_s = started.elapsed().as_secs_f64();
+        let now_s = runner.scheduler().now().as_secs_f64();
+        let run_s = now_s - clock_start_s;
         runner.step(now_s, None)?;
         let status = runner.status();
         if status.finished {
             break;
         }
-        let time_up = args.duration_s.is_some_and(|d| now_s >= d);
+        let time_up = args.duration_s.is_some_and(|d| run_s >= d);
         let stop = time_up || interrupted.load(Ordering::SeqCst);
         match stop_asked_s {
             None if stop => {
@@ -208,7 +211,7 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
             }
             _ => {}
         }
-        let next = started + Duration::from_secs_f64(now_s) + LOOP_PERIOD;
+        let next = started + Duration::from_secs_f64(run_s) + LOOP_PERIOD;
         std::thread::sleep(next.saturating_duration_since(Instant::now()));
     }
     runner.stop();

@@ -19,7 +19,7 @@ use runtime::link::{LinkConfig, MavlinkLink};
 use runtime::mission::runner::LOCKSTEP_TIMEOUT;
 use runtime::mission::{MissionEvent, MissionPlan, MissionRunner, RunnerError, RunnerOptions};
 use runtime::registry::PluginRegistry;
-use runtime::scheduler::SchedulerBuilder;
+use runtime::scheduler::{Pinning, RealTimeOptions, SchedulerBuilder, TaskScheduler};
 use runtime::topics::{
     CameraFrame, DepthFrame, HazardReport, RelativeState, DEPTH_FRAME, HAZARDS, RELATIVE_STATE,
 };
@@ -78,6 +78,10 @@ pub struct SimOptions {
     pub record_track: bool,
     /// The downward stereo depth camera; it flies only when a task reads depth frames.
     pub stereo: StereoCameraConfig,
+    /// Fly on the wall clock: the tasks on the real-time scheduler's threads, the autopilot
+    /// streaming as a real one does (no lockstep), the world stepped at the pace of real time.
+    /// Not deterministic; this is how the onboard path is flown end to end in one process.
+    pub real_time: bool,
 }
 
 impl Default for SimOptions {
@@ -94,6 +98,7 @@ impl Default for SimOptions {
             faults: Faults::default(),
             record_track: false,
             stereo: StereoCameraConfig::default(),
+            real_time: false,
         }
     }
 }
@@ -156,7 +161,14 @@ pub fn simulate(
             ));
         }
     }
-    let scheduler = builder.build_virtual()?;
+    let scheduler: Box<dyn TaskScheduler> = if options.real_time {
+        Box::new(builder.build_real_time(RealTimeOptions {
+            pinning: Pinning::Off,
+            ..RealTimeOptions::default()
+        })?)
+    } else {
+        Box::new(builder.build_virtual()?)
+    };
 
     // The world.
     let pad_height_m = TractorParams::default().pad_height_m;
@@ -229,8 +241,8 @@ pub fn simulate(
     let runtime_addr = link
         .local_addr()
         .ok_or_else(|| SimError::Link("the link has no local UDP address".into()))?;
-    let mut autopilot =
-        MavlinkAutopilot::bind_local(runtime_addr, true).map_err(|e| link_error(&e))?;
+    let mut autopilot = MavlinkAutopilot::bind_local(runtime_addr, !options.real_time)
+        .map_err(|e| link_error(&e))?;
 
     let plan = mission_plan(model, meeting, pad_height_m);
     let max_time_s = options.max_time_s.unwrap_or_else(|| {
@@ -312,6 +324,7 @@ pub fn simulate(
     let mut tick = 0u64;
     let mut finished_s = None;
     let phase_count = config.mission.phases.len();
+    let pace_start = Instant::now();
     loop {
         let time_s = tick as f64 * TICK_S;
         let now = Timestamp::from_nanos(MavlinkAutopilot::time_ns(time_s));
@@ -326,14 +339,23 @@ pub fn simulate(
         let in_window = |window: Option<(f64, f64)>| matches!((window, fault_time), (Some((from, until)), Some(t)) if t >= from && t < until);
         autopilot.set_link_down(in_window(options.faults.link_loss));
 
-        // The camera renders only what the detector will look at before the next frame.
+        // The runtime's clock: the world's in lockstep; the real-time scheduler's (the one its
+        // tasks stamp messages with) on the wall clock.
+        let runtime_now_s = if options.real_time {
+            runner.scheduler().now().as_secs_f64()
+        } else {
+            now.as_secs_f64()
+        };
+        // The camera renders only what a task will look at before the next frame (in real
+        // time the scheduler does not say ahead: every frame).
         if camera.is_due(time_s) {
-            let wanted = camera_consumers.iter().any(|name| {
-                runner
-                    .scheduler()
-                    .next_activation(name)
-                    .is_some_and(|next| next.as_secs_f64() < time_s + camera_period_s)
-            });
+            let wanted = options.real_time
+                || camera_consumers.iter().any(|name| {
+                    runner
+                        .scheduler()
+                        .next_activation(name)
+                        .is_some_and(|next| next.as_secs_f64() < time_s + camera_period_s)
+                });
             if wanted {
                 scene
                     .set_pad_pose(pad_pose(&tractor))
@@ -352,7 +374,7 @@ pub fn simulate(
                                 frame_index,
                                 image: frame.image,
                             },
-                            capture_time_s: now.as_secs_f64(),
+                            capture_time_s: runtime_now_s,
                         });
                         if let Some((stereo, depth_frames)) = stereo.as_mut() {
                             match stereo.capture(
@@ -381,15 +403,18 @@ pub fn simulate(
             }
         }
 
-        // Autopilot → runtime → autopilot, in lockstep.
+        // Autopilot → runtime → autopilot: in lockstep, or as the datagrams come.
         let snapshot = vehicle.snapshot(time_s, battery.reading());
         let t_ns = autopilot.publish(&snapshot).map_err(|e| link_error(&e))?;
+        let lockstep = (!options.real_time).then_some(t_ns);
         let step = runner
-            .step(now.as_secs_f64(), Some(t_ns))
+            .step(runtime_now_s, lockstep)
             .map_err(|e| link_error(&e))?;
-        let received = autopilot
-            .receive_lockstep(t_ns, LOCKSTEP_TIMEOUT)
-            .map_err(|e| link_error(&e))?;
+        let received = match lockstep {
+            Some(t_ns) => autopilot.receive_lockstep(t_ns, LOCKSTEP_TIMEOUT),
+            None => autopilot.receive(),
+        }
+        .map_err(|e| link_error(&e))?;
         for received in received {
             let result = vehicle.command(received.command, time_s);
             if let Some(pending) = received.ack {
@@ -403,10 +428,10 @@ pub fn simulate(
         if tracking_started_s.is_some() && vehicle.touchdown().is_none() {
             if let Some(message) = relative_states.latest() {
                 let relative = &message.value;
-                let fresh = time_s - relative.estimate.time_s <= LOCALISATION_MAX_AGE_S;
+                let fresh = runtime_now_s - relative.estimate.time_s <= LOCALISATION_MAX_AGE_S;
                 let seen = relative
                     .last_fix_time_s
-                    .is_some_and(|fix_s| time_s - fix_s <= LOCALISATION_MAX_FIX_GAP_S);
+                    .is_some_and(|fix_s| runtime_now_s - fix_s <= LOCALISATION_MAX_FIX_GAP_S);
                 if fresh && seen {
                     let pad = tractor.pad();
                     let truth = vehicle.position_ned_m() - pad.centre_ned_m;
@@ -504,6 +529,11 @@ pub fn simulate(
             next_track_s += 1.0;
         }
         tick += 1;
+        if options.real_time {
+            // The world keeps the pace of the wall clock.
+            let due = pace_start + std::time::Duration::from_secs_f64(tick as f64 * TICK_S);
+            std::thread::sleep(due.saturating_duration_since(Instant::now()));
+        }
     }
     let end_s = tick as f64 * TICK_S;
     runner.stop();

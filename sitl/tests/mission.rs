@@ -67,6 +67,35 @@ fn no_wind_straight_path_lands_within_15_cm() {
     assert!(outcome.hazard_frames > 0);
 }
 
+/// The onboard path end to end in one process: the runtime on the wall clock (tasks on the
+/// real-time scheduler's threads) over real UDP sockets, frames through the in-memory camera
+/// source, the world stepped at the pace of real time with its autopilot streaming, not in
+/// lockstep.
+#[test]
+fn on_the_wall_clock_over_real_sockets_the_mission_lands_within_15_cm() {
+    let started = std::time::Instant::now();
+    let outcome = fly(SimOptions {
+        real_time: true,
+        ..short(2)
+    });
+    let wall_s = started.elapsed().as_secs_f64();
+    assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
+    let error_m = outcome.touchdown_error_m.unwrap();
+    assert!(error_m <= 0.15, "touchdown error {error_m} m");
+    // Real time: the mission took as long on the wall as in the world (within setup time and
+    // a loaded machine's lag).
+    assert!(
+        wall_s >= outcome.mission_time_s && wall_s < outcome.mission_time_s * 1.5 + 5.0,
+        "{wall_s} s on the wall for {} s of mission",
+        outcome.mission_time_s
+    );
+    assert!(
+        outcome.failed_tasks.is_empty(),
+        "{:?}",
+        outcome.failed_tasks
+    );
+}
+
 #[test]
 fn hazards_beside_the_track_are_seen_by_the_shipped_model() {
     let (model, registry) = reference();

@@ -693,6 +693,8 @@ impl TaskRunner {
 
 /// What the mission runner needs of a scheduler, whichever clock drives it.
 pub trait TaskScheduler {
+    /// The scheduler's clock: what its tasks stamp their messages with.
+    fn now(&self) -> Timestamp;
     fn bus(&self) -> &Bus;
     fn start(&mut self) -> Result<(), SchedulerError>;
     /// Virtual time: runs every activation due up to `now`. Real time: the workers run by
@@ -709,6 +711,9 @@ pub trait TaskScheduler {
 }
 
 impl TaskScheduler for VirtualScheduler {
+    fn now(&self) -> Timestamp {
+        VirtualScheduler::now(self)
+    }
     fn bus(&self) -> &Bus {
         VirtualScheduler::bus(self)
     }
@@ -742,6 +747,9 @@ impl TaskScheduler for VirtualScheduler {
 }
 
 impl TaskScheduler for RealTimeScheduler {
+    fn now(&self) -> Timestamp {
+        RealTimeScheduler::now(self)
+    }
     fn bus(&self) -> &Bus {
         RealTimeScheduler::bus(self)
     }
@@ -771,6 +779,43 @@ impl TaskScheduler for RealTimeScheduler {
     }
     fn stop(&mut self) {
         RealTimeScheduler::stop(self)
+    }
+}
+
+/// A scheduler chosen at run time (the simulator's harness flies in virtual or in real time).
+impl TaskScheduler for Box<dyn TaskScheduler> {
+    fn now(&self) -> Timestamp {
+        (**self).now()
+    }
+    fn bus(&self) -> &Bus {
+        (**self).bus()
+    }
+    fn start(&mut self) -> Result<(), SchedulerError> {
+        (**self).start()
+    }
+    fn run_until(&mut self, now: Timestamp) -> Result<(), SchedulerError> {
+        (**self).run_until(now)
+    }
+    fn level(&self, task: &str) -> Option<usize> {
+        (**self).level(task)
+    }
+    fn set_level(&mut self, task: &str, level: usize) -> Result<(), SchedulerError> {
+        (**self).set_level(task, level)
+    }
+    fn set_phase(&mut self, gate: &PhaseGate) {
+        (**self).set_phase(gate)
+    }
+    fn next_activation(&self, task: &str) -> Option<Timestamp> {
+        (**self).next_activation(task)
+    }
+    fn stats(&self) -> Vec<TaskStats> {
+        (**self).stats()
+    }
+    fn failed_tasks(&self) -> Vec<String> {
+        (**self).failed_tasks()
+    }
+    fn stop(&mut self) {
+        (**self).stop()
     }
 }
 
