@@ -149,7 +149,7 @@ fn a_real_px4_battery_log_drives_the_governor_through_the_link() {
     while next_row < rows.len() {
         let wall_s = started.elapsed().as_secs_f64();
         // The vehicle: airborne, hovering, at 20 Hz of wall time.
-        if tick % 20 == 0 {
+        if tick.is_multiple_of(20) {
             send(&px4_heartbeat());
             send(&MavMessage::EXTENDED_SYS_STATE(EXTENDED_SYS_STATE_DATA {
                 vtol_state: MavVtolState::MAV_VTOL_STATE_UNDEFINED,
