@@ -1,21 +1,30 @@
 //! A dry run: every configured task built from its plugin and stepped at its QoS rate in real
-//! time, on synthetic inputs — rendered camera frames of the landing pad, a hovering vehicle's
-//! state and battery telemetry from the pack model at the planned power — with the governor choosing the levels, for a few
-//! seconds; then the per-task statistics. It shows what the tasks cost on this computer before
-//! anything flies.
+//! time by the mission runner, the same loop that flies, on synthetic inputs — rendered camera
+//! frames of the landing pad through an in-memory camera source, and a hovering vehicle speaking
+//! MAVLink over the loopback with battery telemetry from the pack model at the power the
+//! governor's model predicts — in observe mode, holding one phase, for a few seconds; then the
+//! per-task statistics. It shows what the tasks cost on this computer before anything flies.
 
+use crate::camera_source::{CapturedFrame, MemorySource};
 use crate::energy::MissionModel;
-use crate::governor::Governor;
+use crate::link::{LinkConfig, LinkError, MavlinkLink};
+use crate::mission::{MissionPlan, MissionRunner, RunnerError, RunnerOptions};
 use crate::registry::PluginRegistry;
-use crate::scheduler::{PhaseGate, RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats};
-use crate::telemetry::{BatteryTelemetry, MissionProgress};
-use crate::topics::{CameraFrame, VehicleState, CAMERA_FRAME, VEHICLE_STATE};
+use crate::scheduler::{RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats};
+use crate::topics::{CameraFrame, VehicleState};
 use algorithms::estimation::projection::Attitude;
 use algorithms::vision::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::landing_marker::LandingMarkerLayout;
 use algorithms::vision::render::{render, RenderOptions, Scene, Texture};
+use mavlink::dialects::common::{
+    MavAutopilot, MavLandedState, MavMessage, MavModeFlag, MavState, MavType, MavVtolState,
+    ATTITUDE_DATA, BATTERY_STATUS_DATA, EXTENDED_SYS_STATE_DATA, HEARTBEAT_DATA,
+    LOCAL_POSITION_NED_DATA,
+};
+use mavlink::{MavHeader, MavlinkVersion};
 use nalgebra::Vector3;
+use std::net::{SocketAddr, UdpSocket};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -25,6 +34,12 @@ pub enum DryRunError {
     UnknownPhase(String),
     #[error(transparent)]
     Scheduler(#[from] SchedulerError),
+    #[error(transparent)]
+    Runner(#[from] RunnerError),
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    #[error("the synthetic vehicle's socket: {0}")]
+    Vehicle(#[from] std::io::Error),
     #[error("governor: {0}")]
     Governor(String),
     #[error("synthetic camera: {0}")]
@@ -51,6 +66,8 @@ pub struct DryRunReport {
 
 pub(crate) const FRAME_PERIOD: Duration = Duration::from_millis(100);
 const TELEMETRY_PERIOD: Duration = Duration::from_millis(200);
+/// The loop's period, as in flight.
+const LOOP_PERIOD: Duration = Duration::from_millis(20);
 
 pub fn dry_run(
     model: &MissionModel,
@@ -77,111 +94,174 @@ pub fn dry_run(
     };
     let phase_name = config.mission.phases[phase_index].name.clone();
     let frames = synthetic_frames()?;
-    let mut governor = Governor::from_mission(model, config.governor.clone().unwrap_or_default())
-        .map_err(|e| DryRunError::Governor(e.to_string()))?;
     let pack = model.battery_spec(None).map_err(DryRunError::Governor)?;
 
-    // Only the phase's tasks run, as in flight.
-    let mut scheduler = SchedulerBuilder::new(registry)
+    let scheduler = SchedulerBuilder::new(registry)
         .tasks(&config.tasks)
-        .phase_gate(PhaseGate::Phase(phase_name.clone()))
         .build_real_time(RealTimeOptions::default())?;
-    let camera = scheduler
-        .bus()
-        .publisher::<CameraFrame>(CAMERA_FRAME)
-        .map_err(|e| DryRunError::Camera(e.to_string()))?;
-    let vehicle = scheduler
-        .bus()
-        .publisher::<VehicleState>(VEHICLE_STATE)
-        .map_err(|e| DryRunError::Camera(e.to_string()))?;
-    let hovering = hovering_vehicle();
-    apply_levels(&scheduler, model, &governor)?;
-    scheduler.start()?;
+    let link = MavlinkLink::bind_local_ephemeral(LinkConfig::default())?;
+    let runtime_addr = link
+        .local_addr()
+        .ok_or_else(|| DryRunError::Camera("the link has no local address".into()))?;
+    let mut vehicle = SyntheticVehicle::new(runtime_addr)?;
+    let camera = MemorySource::new();
+    let mut plan = MissionPlan::for_mission(config);
+    plan.control = false;
+    plan.only_phase = Some(phase_index);
+    let mut runner = MissionRunner::new(
+        model.clone(),
+        scheduler,
+        link,
+        plan,
+        Some(Box::new(camera.clone())),
+        RunnerOptions::default(),
+    )?;
 
     let started = Instant::now();
-    let (mut frames_published, mut telemetry_samples) = (0u64, 0u64);
     let mut next_frame = Duration::ZERO;
     let mut next_telemetry = Duration::ZERO;
+    let mut frame_index = 0u64;
     let (mut soc, mut consumed_mah) = (1.0_f64, 0.0_f64);
-    let mut governor_events = Vec::new();
     while started.elapsed() < options.duration {
         let now = started.elapsed();
+        let now_s = runner.scheduler().now().as_secs_f64();
         if now >= next_frame {
-            vehicle.publish(scheduler.now(), hovering);
-            let image = frames[frames_published as usize % frames.len()].clone();
-            camera.publish(
-                scheduler.now(),
-                CameraFrame {
-                    frame_index: frames_published,
-                    image,
-                },
-            );
-            frames_published += 1;
+            let image = frames[frame_index as usize % frames.len()].clone();
+            camera.push(CapturedFrame {
+                frame: CameraFrame { frame_index, image },
+                capture_time_s: now_s,
+            });
+            frame_index += 1;
             next_frame += FRAME_PERIOD;
         }
-        if now >= next_telemetry {
+        let battery = if now >= next_telemetry {
             // The pack at the power the governor's model predicts for the levels in force.
-            let power_w = governor.model_power_w(phase_index).unwrap_or(0.0);
+            let power_w = runner.governor().model_power_w(phase_index).unwrap_or(0.0);
             let current_a = pack.current_for_power_a(soc, power_w).unwrap_or(0.0);
             let dt_s = TELEMETRY_PERIOD.as_secs_f64();
             consumed_mah += current_a * dt_s / 3.6;
             soc -= current_a * dt_s / 3600.0 / pack.capacity_ah();
-            let sample = BatteryTelemetry {
-                time_s: now.as_secs_f64(),
-                voltage_v: Some(pack.terminal_voltage_v(soc, current_a)),
-                current_a: Some(current_a),
-                consumed_mah: Some(consumed_mah),
-                remaining_fraction: None,
-            };
-            let progress = MissionProgress::new(phase_index, now.as_secs_f64());
-            match governor.update(&sample, progress) {
-                Ok(events) => {
-                    for event in events {
-                        governor_events.push(event.describe(&config.tasks));
-                    }
-                    apply_levels(&scheduler, model, &governor)?;
-                }
-                Err(error) => governor_events.push(format!("telemetry refused: {error}")),
-            }
-            telemetry_samples += 1;
             next_telemetry += TELEMETRY_PERIOD;
-        }
-        let wake = next_frame.min(next_telemetry);
-        std::thread::sleep(wake.saturating_sub(started.elapsed()));
+            Some((
+                pack.terminal_voltage_v(soc, current_a),
+                current_a,
+                consumed_mah,
+            ))
+        } else {
+            None
+        };
+        vehicle.send(now.as_secs_f64(), battery)?;
+        runner.step(now_s, None)?;
+        std::thread::sleep(LOOP_PERIOD.saturating_sub(started.elapsed() - now));
     }
     let wall_s = started.elapsed().as_secs_f64();
-    scheduler.stop();
+    runner.stop();
+    let stats = runner.scheduler().stats();
     let tasks = config
         .tasks
         .iter()
         .filter_map(|task| {
-            let stats = scheduler.task_stats(&task.name)?;
+            let stats = stats.iter().find(|s| s.name == task.name)?.clone();
             Some((stats, task.runs_in(&phase_name)))
         })
         .collect();
+    let log = runner.log();
     Ok(DryRunReport {
         phase: phase_name,
         tasks,
-        frames_published,
-        telemetry_samples,
-        governor_events,
+        frames_published: log.frames,
+        telemetry_samples: log.battery.samples,
+        governor_events: log.governor.iter().map(|d| d.description.clone()).collect(),
         wall_s,
     })
 }
 
-/// Sets each task that runs in the phase to the governor's level.
-fn apply_levels(
-    scheduler: &crate::scheduler::RealTimeScheduler,
-    model: &MissionModel,
-    governor: &Governor,
-) -> Result<(), DryRunError> {
-    for chosen in governor.current_levels() {
-        let name = &model.config.tasks[chosen.task].name;
-        if scheduler.level(name) != Some(chosen.level) {
-            scheduler.set_level(name, chosen.level)?;
-        }
+/// The dry run's vehicle: a PX4 hovering at [`HOVER_HEIGHT_M`] in position mode, speaking
+/// MAVLink over the loopback as an autopilot does (system 1, component 1).
+struct SyntheticVehicle {
+    socket: UdpSocket,
+    to: SocketAddr,
+    sequence: u8,
+    sent_heartbeat_s: Option<f64>,
+}
+
+impl SyntheticVehicle {
+    fn new(to: SocketAddr) -> std::io::Result<Self> {
+        Ok(Self {
+            socket: UdpSocket::bind("127.0.0.1:0")?,
+            to,
+            sequence: 0,
+            sent_heartbeat_s: None,
+        })
     }
-    Ok(())
+
+    /// Attitude and position every call, the heartbeat once a second, and the battery
+    /// (volts, amps, mAh consumed) when given.
+    fn send(&mut self, time_s: f64, battery: Option<(f64, f64, f64)>) -> std::io::Result<()> {
+        let state = hovering_vehicle();
+        let time_boot_ms = (time_s * 1000.0) as u32;
+        if self
+            .sent_heartbeat_s
+            .is_none_or(|last| time_s - last >= 1.0)
+        {
+            self.sent_heartbeat_s = Some(time_s);
+            self.message(&MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+                custom_mode: 3 << 16, // PX4 POSCTL
+                mavtype: MavType::MAV_TYPE_QUADROTOR,
+                autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
+                base_mode: MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+                    | MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED,
+                system_status: MavState::MAV_STATE_ACTIVE,
+                mavlink_version: 3,
+            }))?;
+            self.message(&MavMessage::EXTENDED_SYS_STATE(EXTENDED_SYS_STATE_DATA {
+                vtol_state: MavVtolState::MAV_VTOL_STATE_UNDEFINED,
+                landed_state: MavLandedState::MAV_LANDED_STATE_IN_AIR,
+            }))?;
+        }
+        let attitude = state.attitude;
+        self.message(&MavMessage::ATTITUDE(ATTITUDE_DATA {
+            time_boot_ms,
+            roll: attitude.roll_rad as f32,
+            pitch: attitude.pitch_rad as f32,
+            yaw: attitude.yaw_rad as f32,
+            ..Default::default()
+        }))?;
+        let position = state.position_ned_m.unwrap_or_else(Vector3::zeros);
+        self.message(&MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+            time_boot_ms,
+            x: position.x as f32,
+            y: position.y as f32,
+            z: position.z as f32,
+            ..Default::default()
+        }))?;
+        if let Some((voltage_v, current_a, consumed_mah)) = battery {
+            let mut voltages = [u16::MAX; 10];
+            voltages[0] = (voltage_v * 1000.0).round() as u16;
+            self.message(&MavMessage::BATTERY_STATUS(BATTERY_STATUS_DATA {
+                current_consumed: consumed_mah.round() as i32,
+                energy_consumed: -1,
+                voltages,
+                current_battery: (current_a * 100.0).round() as i16,
+                battery_remaining: -1,
+                ..Default::default()
+            }))?;
+        }
+        Ok(())
+    }
+
+    fn message(&mut self, message: &MavMessage) -> std::io::Result<()> {
+        let header = MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: self.sequence,
+        };
+        self.sequence = self.sequence.wrapping_add(1);
+        let mut bytes = Vec::with_capacity(64);
+        mavlink::write_versioned_msg(&mut bytes, MavlinkVersion::V2, header, message)
+            .map_err(|e| std::io::Error::other(e.to_string()))?;
+        self.socket.send_to(&bytes, self.to).map(|_| ())
+    }
 }
 
 /// The synthetic vehicle: hovering 5 m above the pad, slightly tilted.

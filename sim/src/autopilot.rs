@@ -398,7 +398,9 @@ impl MavlinkAutopilot {
                     }),
                 }),
                 Err(result) => {
-                    tracing::warn!(command = ?long.command, ?result, "command refused");
+                    if result != MavResult::MAV_RESULT_ACCEPTED {
+                        tracing::warn!(command = ?long.command, ?result, "command refused");
+                    }
                     self.send_ack(long.command, result)?;
                 }
             },

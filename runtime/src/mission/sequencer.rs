@@ -98,6 +98,9 @@ pub struct MissionPlan {
     /// A landing task steers the last phase; without one (no camera) the last phase lands
     /// where the vehicle is with the autopilot's land mode.
     pub vision_landing: bool,
+    /// Observe mode only: hold this one phase from the first time the autopilot is heard (a
+    /// dry run of one phase).
+    pub only_phase: Option<usize>,
 }
 
 impl MissionPlan {
@@ -131,6 +134,7 @@ impl MissionPlan {
             offboard_preamble_s: 0.5,
             control: true,
             vision_landing: true,
+            only_phase: None,
         }
     }
 }
@@ -479,6 +483,12 @@ impl MissionSequencer {
 
     /// Observe mode: the phases follow the flight (airborne, durations, on the ground).
     fn observe(&mut self, autopilot: &AutopilotView, now_s: f64, events: &mut Vec<MissionEvent>) {
+        if let Some(phase) = self.plan.only_phase {
+            if self.phase.is_none() {
+                self.start_phase(phase, now_s, events);
+            }
+            return;
+        }
         let last_phase = self.plan.phase_names.len().saturating_sub(1);
         match self.phase {
             None if autopilot.armed && !autopilot.landed => {
