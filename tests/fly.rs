@@ -396,3 +396,45 @@ fn flies_ardupilot_through_guided_and_lands_it_with_land() {
         );
     }
 }
+
+#[test]
+fn when_the_time_is_up_qosrt_lands_px4_where_it_is_and_exits_once_disarmed() {
+    let Some(px4) = Px4::start(4) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    // Tracking would last 10 minutes; the run is over after 30 s, mid-tracking.
+    let config = short_mission(dir.path(), 600.0);
+    let child = qosrt_run(
+        &config,
+        &[
+            "--mavlink",
+            &px4.mavlink(),
+            "--control",
+            "--duration-s",
+            "30",
+            "--json",
+        ],
+    );
+    let (report, stderr) = report_of(child, Duration::from_secs(150));
+    let events = event_lines(&report);
+    assert_eq!(report["finished"], true, "{events:?}\n{stderr}");
+    let tracking = events
+        .iter()
+        .position(|e| e == "phase tracking started")
+        .unwrap_or_else(|| panic!("{events:?}"));
+    let landing = events
+        .iter()
+        .position(|e| e == "landing where the vehicle is: --duration-s ran out")
+        .unwrap_or_else(|| panic!("{events:?}"));
+    assert!(tracking < landing, "{events:?}");
+    assert_eq!(
+        events.last().map(String::as_str),
+        Some("landed and disarmed")
+    );
+    assert!(
+        !events.iter().any(|e| e == "phase landing started"),
+        "{events:?}"
+    );
+    let modes = modes(&report);
+    assert!(modes.contains(&("Land".into(), true)), "{modes:?}");
+    assert_eq!(modes.last().map(|m| m.1), Some(false), "{modes:?}");
+}
