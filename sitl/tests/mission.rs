@@ -96,6 +96,64 @@ fn on_the_wall_clock_over_real_sockets_the_mission_lands_within_15_cm() {
     );
 }
 
+/// The pack pays for what runs, phase by phase: with the levels held, the companion energy is the
+/// measured profile power of each phase (read here from the profile files, not through the
+/// runtime's model) times the time that phase flew, and nothing before the first phase or after
+/// the landing.
+#[test]
+fn the_companion_energy_is_what_each_phase_ran() {
+    let outcome = fly(SimOptions {
+        fixed_levels: vec![("hazard".into(), 4.0), ("detection".into(), 10.0)],
+        ..short(3)
+    });
+    assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
+    let at = |what: &str| {
+        outcome
+            .events
+            .iter()
+            .find(|(_, e)| e == what)
+            .unwrap_or_else(|| panic!("no `{what}`: {:#?}", outcome.events))
+            .0
+    };
+    let transit_s = at("phase transit started");
+    let tracking_s = at("phase tracking started");
+    let landing_s = at("phase landing started");
+    let end_s = at("landed and disarmed");
+    // The board's measured power (profiles/jetson-nano-seed): transit runs the hazard CNN at
+    // 4 fps, its detector not running (the profile's lowest rate, 0.5 fps, is its nearest
+    // measured state); tracking runs both at 4 and 10 fps; landing the detector at 10 fps.
+    let sample = |file: &str, knobs: &[f64]| -> f64 {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../profiles/jetson-nano-seed")
+            .join(file);
+        let profile: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
+        profile["sample"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| {
+                let values: Vec<f64> = s["knobs"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_float().unwrap())
+                    .collect();
+                values == knobs
+            })
+            .and_then(|s| s["power_w"].as_float())
+            .unwrap_or_else(|| panic!("{file}: no sample at {knobs:?}"))
+    };
+    let expected_wh = (sample("tracking.toml", &[4.0, 0.5]) * (tracking_s - transit_s)
+        + sample("tracking.toml", &[4.0, 10.0]) * (landing_s - tracking_s)
+        + sample("landing.toml", &[10.0]) * (end_s - landing_s))
+        / 3600.0;
+    assert!(
+        (outcome.companion_energy_wh - expected_wh).abs() < 1e-6,
+        "{} Wh charged, {expected_wh} Wh ran",
+        outcome.companion_energy_wh
+    );
+}
+
 #[test]
 fn hazards_beside_the_track_are_seen_by_the_shipped_model() {
     let (model, registry) = reference();
