@@ -409,7 +409,10 @@ pub fn simulate(
         let lockstep = (!options.real_time).then_some(t_ns);
         let step = runner
             .step(runtime_now_s, lockstep)
-            .map_err(|e| link_error(&e))?;
+            .map_err(|error| match error {
+                RunnerError::Scheduler(error) => SimError::Scheduler(error),
+                other => SimError::Link(other.to_string()),
+            })?;
         let received = match lockstep {
             Some(t_ns) => autopilot.receive_lockstep(t_ns, LOCKSTEP_TIMEOUT),
             None => autopilot.receive(),

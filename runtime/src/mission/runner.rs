@@ -162,8 +162,11 @@ impl<S: TaskScheduler> MissionRunner<S> {
             Some(t_ns) => self.link.poll_lockstep(t_ns, LOCKSTEP_TIMEOUT)?,
             None => self.link.poll(now_s),
         };
-        let control = self.sequencer.plan().control;
-        if control && self.link.failsafe_action() == FailsafeAction::HoldThenReenter {
+        // Back from a link loss: re-enter offboard only while qosrt holds control (not in
+        // observe mode, not after a takeover, not during the landing it ordered).
+        if self.sequencer.status().holds_control
+            && self.link.failsafe_action() == FailsafeAction::HoldThenReenter
+        {
             self.link.recover()?;
         }
         self.take_telemetry(now, &update)?;
