@@ -450,3 +450,32 @@ fn ardupilot_enters_guided_before_arming() {
     let (commands, _) = sequencer.step(&input(view, 0.1));
     assert_eq!(commands, [VehicleCommand::Arm]);
 }
+
+#[test]
+fn after_a_takeover_a_lost_and_restored_link_does_not_bring_control_back() {
+    let mut sequencer = MissionSequencer::new(plan());
+    let mut autopilot = Obedient::new();
+    let mut time_s = 0.0;
+    fly_until(&mut sequencer, &mut autopilot, &mut time_s, |s, _| {
+        s.status().phase == Some(1)
+    });
+    autopilot.view.mode = AutopilotMode::Position;
+    let mut step = |link_up: bool, time_s: f64| {
+        sequencer.step(&SequencerInput {
+            time_s,
+            link_up,
+            autopilot: Some(autopilot.view),
+            landing: Some(landing(LandingMode::Follow, 0.0)),
+            land_now: None,
+        })
+    };
+    let (_, events) = step(true, time_s);
+    assert!(matches!(events[..], [MissionEvent::TakenOver { .. }]));
+    // The link drops, then comes back: restored, but nothing is sent and control stays away.
+    for k in 1..=40 {
+        let link_up = k > 20;
+        let (commands, _) = step(link_up, time_s + k as f64 * 0.05);
+        assert!(commands.is_empty(), "{commands:?}");
+    }
+    assert!(!sequencer.status().holds_control);
+}
