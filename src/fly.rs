@@ -356,3 +356,29 @@ fn summary(log: &MissionLog, stats: &[TaskStats], wall_s: f64) -> String {
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::parse_signing_key;
+
+    #[test]
+    fn a_signing_key_is_32_raw_bytes_or_64_hex_digits() {
+        let raw: Vec<u8> = (0..32).collect();
+        assert_eq!(parse_signing_key(&raw).unwrap().to_vec(), raw);
+        let hex: String = raw.iter().map(|b| format!("{b:02X}")).collect();
+        assert_eq!(
+            parse_signing_key(format!("{hex}\n").as_bytes())
+                .unwrap()
+                .to_vec(),
+            raw
+        );
+        let short = parse_signing_key(b"abcd").unwrap_err();
+        assert!(short.contains("found 4 characters"), "{short}");
+        let not_hex = "zz".repeat(32);
+        assert!(parse_signing_key(not_hex.as_bytes())
+            .unwrap_err()
+            .contains("64 hex digits"));
+        let binary = parse_signing_key(&[0xff; 31]).unwrap_err();
+        assert!(binary.contains("found 31 bytes"), "{binary}");
+    }
+}

@@ -306,6 +306,15 @@ const BAD_CASES: &[BadCase] = &[
         )],
     },
     BadCase {
+        name: "a misspelt link setting",
+        replace: &[("\n[governor]", "\n[link]\nsigning_key_fil = \"key.bin\"\n\n[governor]")],
+        expect: &[at(
+            "signing_key_fil",
+            0,
+            "unknown key `signing_key_fil` in [link]; did you mean `signing_key_file`?",
+        )],
+    },
+    BadCase {
         name: "every mistake is listed, not only the first",
         replace: &[
             ("reserve_fraction = 0.25", "reserve_fraction = 2.5"),
