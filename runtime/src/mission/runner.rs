@@ -249,17 +249,8 @@ impl<S: TaskScheduler> MissionRunner<S> {
         &self.governor
     }
 
-    pub fn model(&self) -> &MissionModel {
-        &self.model
-    }
-
     pub fn log(&self) -> &MissionLog {
         &self.log
-    }
-
-    /// Adds a line to the mission's log (the harness's world events, faults).
-    pub fn note(&mut self, time_s: f64, what: String) {
-        self.log.event(time_s, what);
     }
 
     /// The companion computer's modelled power now: the phase's power model at the levels in
