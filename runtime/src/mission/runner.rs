@@ -416,14 +416,16 @@ impl<S: TaskScheduler> MissionRunner<S> {
 
     /// The governor's levels for `phase` with the fixed ones put in.
     fn effective_levels(&self, phase: usize) -> Vec<TaskLevel> {
-        let mut levels = self
-            .governor
-            .phase_levels(phase)
-            .map(<[_]>::to_vec)
-            .unwrap_or_default();
-        for level in &mut levels {
-            if let Some(&(_, fixed)) = self.fixed.iter().find(|(task, _)| *task == level.task) {
-                level.level = fixed;
+        self.with_fixed(self.governor.phase_levels(phase).unwrap_or_default())
+    }
+
+    /// `levels` with every `--fix` task at its fixed level (added when missing).
+    fn with_fixed(&self, levels: &[TaskLevel]) -> Vec<TaskLevel> {
+        let mut levels = levels.to_vec();
+        for &(task, level) in &self.fixed {
+            match levels.iter_mut().find(|l| l.task == task) {
+                Some(entry) => entry.level = level,
+                None => levels.push(TaskLevel { task, level }),
             }
         }
         levels
@@ -431,23 +433,11 @@ impl<S: TaskScheduler> MissionRunner<S> {
 
     /// Sets every scheduled task to the level in force: fixed, else the governor's.
     fn apply_levels(&mut self) -> Result<(), RunnerError> {
-        let mut wanted: Vec<(usize, usize)> = self
-            .governor
-            .current_levels()
-            .iter()
-            .map(|l| (l.task, l.level))
-            .collect();
-        for &(task, level) in &self.fixed {
-            match wanted.iter_mut().find(|(t, _)| *t == task) {
-                Some(entry) => entry.1 = level,
-                None => wanted.push((task, level)),
-            }
-        }
-        for (task, level) in wanted {
-            let name = &self.model.config.tasks[task].name;
+        for wanted in self.with_fixed(self.governor.current_levels()) {
+            let name = &self.model.config.tasks[wanted.task].name;
             if let Some(current) = self.scheduler.level(name) {
-                if current != level {
-                    self.scheduler.set_level(name, level)?;
+                if current != wanted.level {
+                    self.scheduler.set_level(name, wanted.level)?;
                 }
             }
         }
