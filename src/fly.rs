@@ -4,7 +4,6 @@
 //! where the vehicle is when qosrt holds control) and reports.
 
 use crate::check::{report_failure, EXIT_INVALID_CONFIG};
-use runtime::camera_source::{CameraSource, ImageFolderConfig, ImageFolderSource};
 use runtime::config::{load_file, LoadedConfig};
 use runtime::energy::load_mission_model;
 use runtime::link::{LinkConfig, MavlinkLink};
@@ -12,7 +11,7 @@ use runtime::mission::{MissionLog, MissionPlan, MissionRunner, RunnerOptions};
 use runtime::plugins::builtin_registry;
 use runtime::scheduler::{RealTimeOptions, SchedulerBuilder, TaskStats};
 use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -23,8 +22,6 @@ use std::time::{Duration, Instant};
 const LOOP_PERIOD: Duration = Duration::from_millis(20);
 /// How long a landing ordered at the end may take before qosrt gives up waiting.
 const LANDING_TIMEOUT_S: f64 = 90.0;
-/// An image folder plays at this rate unless the source says otherwise.
-const DEFAULT_FOLDER_FPS: f64 = 10.0;
 /// The program ended but the vehicle did not land and disarm in time.
 const EXIT_LANDING_TIMEOUT: u8 = 4;
 
@@ -54,6 +51,8 @@ struct FlightReport<'a> {
     tasks: Vec<TaskLine>,
     frames: u64,
     camera_errors: u64,
+    /// What the camera source counted: delivered, dropped, late, malformed, stalls.
+    camera: Option<runtime::camera::CameraStats>,
     finished: bool,
 }
 
@@ -139,7 +138,11 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
         ..LinkConfig::default()
     };
     let link = MavlinkLink::connect(&args.mavlink, link_config)?;
-    let camera = args.camera.as_deref().map(open_camera).transpose()?;
+    let camera = args
+        .camera
+        .as_deref()
+        .map(runtime::camera::open)
+        .transpose()?;
     let mut plan = MissionPlan::for_mission(&loaded.config);
     plan.control = args.control;
     plan.vision_landing = camera.is_some();
@@ -237,6 +240,7 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
             tasks: stats.iter().map(TaskLine::from).collect(),
             frames: log.frames,
             camera_errors: log.camera_errors,
+            camera: runner.camera_stats(),
             finished: runner.status().finished,
         };
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -296,32 +300,6 @@ pub fn parse_signing_key(bytes: &[u8]) -> Result<[u8; 32], String> {
         *byte = u8::from_str_radix(&text[2 * i..2 * i + 2], 16).map_err(|e| e.to_string())?;
     }
     Ok(key)
-}
-
-/// `--camera SOURCE`: an image folder (`folder:PATH[@FPS]` or a folder's path).
-fn open_camera(spec: &str) -> Result<Box<dyn CameraSource>, Failure> {
-    let folder_spec = spec.strip_prefix("folder:").unwrap_or(spec);
-    let (folder, rate_fps) = match folder_spec.rsplit_once('@') {
-        Some((folder, fps)) => {
-            let fps: f64 = fps.parse().map_err(|_| {
-                Failure::Other(format!(
-                    "--camera {spec}: the rate {fps:?} is not a number of frames per second"
-                ))
-            })?;
-            (folder, fps)
-        }
-        None => (folder_spec, DEFAULT_FOLDER_FPS),
-    };
-    if !Path::new(folder).is_dir() {
-        return Err(Failure::Other(format!(
-            "--camera {spec}: expected an image folder (folder:PATH[@FPS]); {folder} is not a folder"
-        )));
-    }
-    let config = ImageFolderConfig {
-        looping: true,
-        ..ImageFolderConfig::new(folder, rate_fps)
-    };
-    Ok(Box::new(ImageFolderSource::open(config)?))
 }
 
 fn summary(log: &MissionLog, stats: &[TaskStats], wall_s: f64) -> String {

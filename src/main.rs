@@ -93,7 +93,8 @@ enum Command {
             conflicts_with = "dry_run"
         )]
         mavlink: Option<String>,
-        /// Camera frames: an image folder (folder:PATH[@FPS]).
+        /// Camera frames: folder:PATH[@FPS], gst:PIPELINE, v4l2:DEVICE, rtp-h264:PORT,
+        /// rtsp://URL or file:PATH (all but folders need a build with --features gstreamer).
         #[arg(long, value_name = "SOURCE", requires = "mavlink")]
         camera: Option<String>,
         /// Command the vehicle: arm, take off, fly the phases in OFFBOARD/GUIDED and land.

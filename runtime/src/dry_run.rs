@@ -5,7 +5,7 @@
 //! governor's model predicts — in observe mode, holding one phase, for a few seconds; then the
 //! per-task statistics. It shows what the tasks cost on this computer before anything flies.
 
-use crate::camera_source::{CapturedFrame, MemorySource};
+use crate::camera::{CapturedFrame, MemorySource};
 use crate::energy::MissionModel;
 use crate::link::{LinkConfig, LinkError, MavlinkLink};
 use crate::mission::{MissionPlan, MissionRunner, RunnerError, RunnerOptions};

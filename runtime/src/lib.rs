@@ -2,7 +2,7 @@
 //! plugins, resources, clock, energy governor and MAVLink link.
 
 pub mod bus;
-pub mod camera_source;
+pub mod camera;
 pub mod catalog;
 pub mod clock;
 pub mod config;

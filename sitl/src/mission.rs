@@ -12,7 +12,7 @@
 
 use crate::hazard_score::HazardScore;
 use nalgebra::Vector3;
-use runtime::camera_source::{CapturedFrame, MemorySource};
+use runtime::camera::{CapturedFrame, MemorySource};
 use runtime::clock::Timestamp;
 use runtime::energy::MissionModel;
 use runtime::link::{LinkConfig, MavlinkLink};

@@ -5,7 +5,7 @@
 //! point. The runner commands LAND in the last phase and streams LANDING_TARGET from the
 //! tracker; ArduPilot steers onto the pad by itself.
 
-use runtime::camera_source::{CapturedFrame, MemorySource};
+use runtime::camera::{CapturedFrame, MemorySource};
 use runtime::config::load_file;
 use runtime::energy::load_mission_model;
 use runtime::link::{LinkConfig, MavlinkLink};

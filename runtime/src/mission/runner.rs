@@ -12,7 +12,7 @@ use super::sequencer::{
     AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, SequencerInput,
 };
 use crate::bus::{Publisher, Subscriber};
-use crate::camera_source::{CameraSource, CameraSourceError};
+use crate::camera::{CameraSource, CameraSourceError};
 use crate::clock::Timestamp;
 use crate::energy::MissionModel;
 use crate::governor::{companion_power_w, Governor, GovernorEvent};
@@ -96,6 +96,8 @@ pub struct MissionRunner<S: TaskScheduler> {
     link: MavlinkLink,
     sequencer: MissionSequencer,
     camera: Option<Box<dyn CameraSource>>,
+    /// The camera's counters when it ended.
+    ended_camera_stats: Option<crate::camera::CameraStats>,
     options: RunnerOptions,
     vehicle_topic: Publisher<VehicleState>,
     phase_topic: Publisher<MissionPhase>,
@@ -139,6 +141,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             link,
             sequencer: MissionSequencer::new(plan),
             camera,
+            ended_camera_stats: None,
             options,
             phase: None,
             land_now: None,
@@ -249,6 +252,14 @@ impl<S: TaskScheduler> MissionRunner<S> {
         &self.governor
     }
 
+    /// What the camera source counted, while the runner has one.
+    pub fn camera_stats(&self) -> Option<crate::camera::CameraStats> {
+        self.camera
+            .as_ref()
+            .map(|camera| camera.stats())
+            .or(self.ended_camera_stats)
+    }
+
     pub fn log(&self) -> &MissionLog {
         &self.log
     }
@@ -320,6 +331,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 Ok(None) => break,
                 Err(error @ CameraSourceError::Ended { .. }) => {
                     self.log.event(now_s, format!("camera: {error}"));
+                    self.ended_camera_stats = Some(camera.stats());
                     self.camera = None;
                     break;
                 }

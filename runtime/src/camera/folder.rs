@@ -1,120 +1,13 @@
-//! Where camera frames come from: the [`CameraSource`] trait, and [`ImageFolderSource`], which
-//! plays a folder of recorded frames (PNG, JPEG, PGM) as a camera.
-//!
-//! A source is polled: [`CameraSource::next_frame`] returns `Ok(Some(frame))` when a new frame is
-//! ready, `Ok(None)` when none is yet, and a named [`CameraSourceError`] when a frame could not be
-//! had. A bad frame is not the end of the mission: the caller reports it and polls again, and the
-//! next frame plays; only [`CameraSourceError::Ended`] says no more will come.
-//!
-//! Frame indices count the frames the source tried to deliver, bad ones included, so a consumer
-//! sees a bad or dropped frame as a gap (see [`CameraFrame::frame_index`]).
-//!
-//! The simulator's harness renders its frames into a [`MemorySource`]; they reach the tasks
-//! the way a real camera's do.
-//!
-//! # A V4L2 camera
-//!
-//! A V4L2 source (a USB or CSI camera on the companion computer, `/dev/videoN`) implements the same
-//! trait: `open` negotiates a grey (`GREY`) or `YUYV` format at the configured size and frame
-//! rate and queues memory-mapped buffers; `next_frame` dequeues a filled buffer without blocking
-//! (`Ok(None)` on `EAGAIN`), copies its luma plane into a [`GrayImage`] (for YUYV, every other
-//! byte), requeues the buffer and numbers the frame from the driver's sequence counter, so frames
-//! the driver dropped show as gaps. A buffer the driver flags as corrupt (`V4L2_BUF_FLAG_ERROR`) or
-//! of the wrong size is [`CameraSourceError::WrongSize`]; a failing ioctl or an unplugged device is
-//! [`CameraSourceError::Device`]. Nothing else in the runtime changes: the camera task only sees
-//! the trait.
+//! [`ImageFolderSource`]: a folder of recorded frames (PNG, JPEG, PGM) played as a camera.
 
 use std::fmt;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use algorithms::vision::image::GrayImage;
-use thiserror::Error;
 
+use super::{CameraSource, CameraSourceError, CapturedFrame};
 use crate::topics::CameraFrame;
-
-/// Why a source gave no frame this time.
-#[derive(Debug, Clone, PartialEq, Error)]
-pub enum CameraSourceError {
-    #[error("{path}: cannot read: {reason}")]
-    Unreadable { path: PathBuf, reason: String },
-    #[error("{path}: not a readable PNG, JPEG or PGM image: {reason}")]
-    Format { path: PathBuf, reason: String },
-    #[error("{path}: the frame is {found_width}×{found_height} pixels, the camera's are {expected_width}×{expected_height}")]
-    WrongSize {
-        path: PathBuf,
-        expected_width: usize,
-        expected_height: usize,
-        found_width: usize,
-        found_height: usize,
-    },
-    #[error("{folder}: no PNG, JPEG or PGM files to play")]
-    EmptyFolder { folder: PathBuf },
-    #[error("{folder}: cannot list the folder: {reason}")]
-    Folder { folder: PathBuf, reason: String },
-    #[error("camera source `{source_name}` has no more frames")]
-    Ended { source_name: String },
-    #[error("camera source `{source_name}`: device error: {reason}")]
-    Device { source_name: String, reason: String },
-    #[error("camera source setting `{name}` is invalid: {reason}")]
-    Config { name: &'static str, reason: String },
-}
-
-/// A frame with the time its exposure was taken, on the runtime's clock: the tracker's delay
-/// compensation works from it, so a source stamps as close to the sensor as it can.
-#[derive(Debug, Clone)]
-pub struct CapturedFrame {
-    pub frame: CameraFrame,
-    pub capture_time_s: f64,
-}
-
-/// Anything that delivers camera frames: the simulator, an image folder, a GStreamer pipeline.
-pub trait CameraSource: Send {
-    /// A short name for logs and errors.
-    fn name(&self) -> &str;
-
-    /// The next frame if one is ready at `now_s` (seconds on the runtime's clock), `Ok(None)` if
-    /// not yet.
-    fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError>;
-}
-
-/// Frames handed in by their producer in the same process (the simulator's harness renders
-/// them): a queue, drained in order by [`CameraSource::next_frame`].
-#[derive(Debug, Clone, Default)]
-pub struct MemorySource {
-    queue: Arc<std::sync::Mutex<std::collections::VecDeque<CapturedFrame>>>,
-}
-
-impl MemorySource {
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    /// Hands in a frame; the source delivers it once the clock reaches its capture time.
-    pub fn push(&self, frame: CapturedFrame) {
-        self.lock().push_back(frame);
-    }
-
-    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::VecDeque<CapturedFrame>> {
-        self.queue
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-    }
-}
-
-impl CameraSource for MemorySource {
-    fn name(&self) -> &str {
-        "memory"
-    }
-
-    fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError> {
-        let mut queue = self.lock();
-        match queue.front() {
-            Some(frame) if frame.capture_time_s <= now_s => Ok(queue.pop_front()),
-            _ => Ok(None),
-        }
-    }
-}
 
 /// How an image folder is played.
 #[derive(Debug, Clone, PartialEq)]
@@ -382,26 +275,6 @@ mod tests {
             })
             .collect();
         assert_eq!(levels, [1, 2, 1, 2, 1]);
-    }
-
-    #[test]
-    fn a_memory_source_delivers_in_order_once_captured() {
-        let source = MemorySource::new();
-        let mut reader = source.clone();
-        for (index, capture_time_s) in [(0u64, 1.0), (1, 1.1)] {
-            source.push(CapturedFrame {
-                frame: CameraFrame {
-                    frame_index: index,
-                    image: Arc::new(GrayImage::filled(4, 4, 0).unwrap()),
-                },
-                capture_time_s,
-            });
-        }
-        assert!(reader.next_frame(0.99).unwrap().is_none());
-        let first = reader.next_frame(1.2).unwrap().unwrap();
-        let second = reader.next_frame(1.2).unwrap().unwrap();
-        assert_eq!((first.frame.frame_index, second.frame.frame_index), (0, 1));
-        assert!(reader.next_frame(5.0).unwrap().is_none());
     }
 
     #[test]

@@ -1,0 +1,394 @@
+//! [`GstreamerSource`] (feature `gstreamer`): any GStreamer pipeline that ends in raw video, read
+//! through an appsink: `v4l2src`, `nvarguscamerasrc`, `rtspsrc`, RTP/H.264 on UDP, a file.
+//!
+//! The source appends `videoconvert ! video/x-raw,format=GRAY8 ! appsink` to the pipeline it is
+//! given. GStreamer's streaming thread hands each sample to a callback that copies its luma
+//! plane into a small queue; [`CameraSource::next_frame`] takes from that queue without
+//! blocking, so the mission loop never waits on the camera.
+//!
+//! - **Capture time.** A buffer's PTS is running time on the pipeline's clock; base time plus
+//!   running time is when it was captured (a live source stamps at capture, `udpsrc` at
+//!   arrival). Its age on that clock, subtracted from the runtime's clock when the frame is
+//!   taken, stamps the frame.
+//! - **Losses are counted and named** ([`CameraStats`]): frames the queue dropped because the
+//!   loop fell behind, frames older than `late_after_s` when taken, frames that are not a grey
+//!   image of the expected size ([`CameraSourceError::Malformed`]). Every sample the sink saw
+//!   takes a frame index, so a loss is a gap to the consumer.
+//! - **A stalled pipeline** (no frame for `stall_after_s`, or none at all within
+//!   `first_frame_timeout_s`) is [`CameraSourceError::Stalled`], once per stall: no frames reach
+//!   the tasks, which the landing treats as it treats a frozen camera (no fresh fix: it holds,
+//!   then climbs to reacquire).
+//! - **A failing pipeline** (an element's error on the bus) is [`CameraSourceError::Pipeline`];
+//!   the end of a file is [`CameraSourceError::Ended`].
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
+
+use algorithms::vision::image::GrayImage;
+use gstreamer as gst;
+use gstreamer::prelude::*;
+use gstreamer_app as gst_app;
+use gstreamer_video as gst_video;
+use gstreamer_video::prelude::*;
+
+use super::{CameraSource, CameraSourceError, CameraStats, CapturedFrame};
+use crate::topics::CameraFrame;
+
+/// The appsink's name inside the pipeline.
+const SINK_NAME: &str = "qosrt_camera_sink";
+
+/// How a pipeline is read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GstreamerConfig {
+    /// The pipeline up to raw video (any format `videoconvert` takes).
+    pub pipeline: String,
+    /// Deliver at the stream's pace (a file) instead of as frames arrive (a live source).
+    pub sync: bool,
+    /// Frames held for the loop; older ones are dropped when it falls behind.
+    pub queue_frames: usize,
+    /// A frame older than this when taken counts as late (it is still delivered, stamped).
+    pub late_after_s: f64,
+    /// No frame for this long after the last is a stall.
+    pub stall_after_s: f64,
+    /// No first frame for this long after start is a stall (decoders wait for a key frame).
+    pub first_frame_timeout_s: f64,
+    /// The camera's frame size; `None` takes the first good frame's.
+    pub expected_size_px: Option<(usize, usize)>,
+}
+
+impl GstreamerConfig {
+    pub fn new(pipeline: impl Into<String>) -> Self {
+        Self {
+            pipeline: pipeline.into(),
+            sync: false,
+            queue_frames: 2,
+            late_after_s: 0.25,
+            stall_after_s: 1.0,
+            first_frame_timeout_s: 10.0,
+            expected_size_px: None,
+        }
+    }
+}
+
+/// One sample as the streaming thread left it.
+struct Arrived {
+    frame_index: u64,
+    image: Result<GrayImage, String>,
+    /// When it was captured, on this host's monotonic clock.
+    captured_at: Instant,
+}
+
+#[derive(Default)]
+struct Shared {
+    queue: VecDeque<Arrived>,
+    samples: u64,
+    dropped: u64,
+}
+
+/// A GStreamer pipeline as a camera.
+pub struct GstreamerSource {
+    name: String,
+    pipeline: gst::Pipeline,
+    bus: gst::Bus,
+    shared: Arc<Mutex<Shared>>,
+    config: GstreamerConfig,
+    expected_size_px: Option<(usize, usize)>,
+    started_at: Instant,
+    last_frame_at: Option<Instant>,
+    stalled: bool,
+    ended: bool,
+    stats: CameraStats,
+}
+
+impl std::fmt::Debug for GstreamerSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GstreamerSource")
+            .field("name", &self.name)
+            .field("stats", &self.stats)
+            .finish()
+    }
+}
+
+impl GstreamerSource {
+    /// Builds the pipeline and starts it playing; a pipeline that does not parse, names an
+    /// element this system lacks, or cannot start is a [`CameraSourceError::Pipeline`].
+    pub fn open(config: GstreamerConfig) -> Result<Self, CameraSourceError> {
+        let name = format!("gst:{}", config.pipeline);
+        let failed = |reason: String| CameraSourceError::Pipeline {
+            source_name: name.clone(),
+            reason,
+        };
+        for (setting, value) in [
+            ("late_after_s", config.late_after_s),
+            ("stall_after_s", config.stall_after_s),
+            ("first_frame_timeout_s", config.first_frame_timeout_s),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(CameraSourceError::Config {
+                    name: setting,
+                    reason: format!("must be a positive number of seconds, got {value}"),
+                });
+            }
+        }
+        if config.queue_frames == 0 {
+            return Err(CameraSourceError::Config {
+                name: "queue_frames",
+                reason: "must hold at least one frame".into(),
+            });
+        }
+        gst::init().map_err(|e| failed(format!("GStreamer does not start: {e}")))?;
+        let description = format!(
+            "{} ! videoconvert ! video/x-raw,format=GRAY8 ! appsink name={SINK_NAME} sync={} \
+             enable-last-sample=false",
+            config.pipeline, config.sync
+        );
+        let pipeline = gst::parse::launch(&description)
+            .map_err(|e| failed(e.to_string()))?
+            .downcast::<gst::Pipeline>()
+            .map_err(|_| failed("the description is not a pipeline".into()))?;
+        let sink = pipeline
+            .by_name(SINK_NAME)
+            .and_then(|e| e.downcast::<gst_app::AppSink>().ok())
+            .ok_or_else(|| failed("the appsink is missing from the pipeline".into()))?;
+        let bus = pipeline
+            .bus()
+            .ok_or_else(|| failed("the pipeline has no bus".into()))?;
+        let shared = Arc::new(Mutex::new(Shared::default()));
+        let queue_frames = config.queue_frames;
+        let callback_shared = shared.clone();
+        sink.set_callbacks(
+            gst_app::AppSinkCallbacks::builder()
+                .new_sample(move |sink| {
+                    let sample = sink.pull_sample().map_err(|_| gst::FlowError::Eos)?;
+                    let captured_at = Instant::now() - sample_age(sink, &sample);
+                    let image = gray_image(&sample);
+                    let mut shared = lock(&callback_shared);
+                    let frame_index = shared.samples;
+                    shared.samples += 1;
+                    if shared.queue.len() >= queue_frames {
+                        shared.queue.pop_front();
+                        shared.dropped += 1;
+                    }
+                    shared.queue.push_back(Arrived {
+                        frame_index,
+                        image,
+                        captured_at,
+                    });
+                    Ok(gst::FlowSuccess::Ok)
+                })
+                .build(),
+        );
+        if let Err(error) = pipeline.set_state(gst::State::Playing) {
+            let reason = bus_error(&bus).unwrap_or_else(|| error.to_string());
+            let _ = pipeline.set_state(gst::State::Null);
+            return Err(failed(reason));
+        }
+        Ok(Self {
+            name,
+            pipeline,
+            bus,
+            shared,
+            expected_size_px: config.expected_size_px,
+            config,
+            started_at: Instant::now(),
+            last_frame_at: None,
+            stalled: false,
+            ended: false,
+            stats: CameraStats::default(),
+        })
+    }
+
+    /// An element of the pipeline by its `name=`: an `appsrc` to feed, a property to watch.
+    pub fn element(&self, name: &str) -> Option<gst::Element> {
+        self.pipeline.by_name(name)
+    }
+
+    /// Errors and the end of stream posted on the bus since the last poll.
+    fn poll_bus(&mut self) -> Result<(), CameraSourceError> {
+        while let Some(message) = self.bus.pop() {
+            match message.view() {
+                gst::MessageView::Error(error) => {
+                    self.ended = true;
+                    return Err(CameraSourceError::Pipeline {
+                        source_name: self.name.clone(),
+                        reason: describe_error(error),
+                    });
+                }
+                gst::MessageView::Eos(_) => self.ended = true,
+                gst::MessageView::Warning(warning) => {
+                    tracing::warn!(source = %self.name, warning = %warning.error(), "camera pipeline")
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+}
+
+impl CameraSource for GstreamerSource {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError> {
+        self.poll_bus()?;
+        let arrived = {
+            let mut shared = lock(&self.shared);
+            self.stats.dropped = shared.dropped;
+            shared.queue.pop_front()
+        };
+        let Some(arrived) = arrived else {
+            if self.ended {
+                // A file's end after its last frame; a failed pipeline said why once already.
+                return Err(CameraSourceError::Ended {
+                    source_name: self.name.clone(),
+                });
+            }
+            let (since, bound_s) = match self.last_frame_at {
+                Some(at) => (at, self.config.stall_after_s),
+                None => (self.started_at, self.config.first_frame_timeout_s),
+            };
+            let silent_s = since.elapsed().as_secs_f64();
+            if silent_s > bound_s && !self.stalled {
+                self.stalled = true;
+                self.stats.stalls += 1;
+                return Err(CameraSourceError::Stalled {
+                    source_name: self.name.clone(),
+                    silent_s,
+                });
+            }
+            return Ok(None);
+        };
+        self.last_frame_at = Some(Instant::now());
+        self.stalled = false;
+        let malformed = |stats: &mut CameraStats, reason: String| {
+            stats.malformed += 1;
+            CameraSourceError::Malformed {
+                source_name: self.name.clone(),
+                frame_index: arrived.frame_index,
+                reason,
+            }
+        };
+        let image = match arrived.image {
+            Ok(image) => image,
+            Err(reason) => return Err(malformed(&mut self.stats, reason)),
+        };
+        let found = (image.width(), image.height());
+        let expected = *self.expected_size_px.get_or_insert(found);
+        if found != expected {
+            let reason = format!(
+                "{}×{} pixels, the camera's are {}×{}",
+                found.0, found.1, expected.0, expected.1
+            );
+            return Err(malformed(&mut self.stats, reason));
+        }
+        let age_s = arrived.captured_at.elapsed().as_secs_f64();
+        if age_s > self.config.late_after_s {
+            self.stats.late += 1;
+        }
+        self.stats.delivered += 1;
+        Ok(Some(CapturedFrame {
+            frame: CameraFrame {
+                frame_index: arrived.frame_index,
+                image: Arc::new(image),
+            },
+            capture_time_s: now_s - age_s,
+        }))
+    }
+
+    fn stats(&self) -> CameraStats {
+        let mut stats = self.stats;
+        stats.dropped = lock(&self.shared).dropped;
+        stats
+    }
+}
+
+impl Drop for GstreamerSource {
+    fn drop(&mut self) {
+        let _ = self.pipeline.set_state(gst::State::Null);
+    }
+}
+
+fn lock(shared: &Mutex<Shared>) -> MutexGuard<'_, Shared> {
+    shared.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// How long ago the sample was captured, on the pipeline's clock: now − (base time + running
+/// time of its PTS). Zero when the sample has no timestamp or the sink no clock yet.
+fn sample_age(sink: &gst_app::AppSink, sample: &gst::Sample) -> Duration {
+    let running = sample
+        .buffer()
+        .and_then(|buffer| buffer.pts())
+        .and_then(|pts| {
+            sample
+                .segment()
+                .and_then(|segment| segment.downcast_ref::<gst::ClockTime>())
+                .and_then(|segment| segment.to_running_time(pts))
+        });
+    let (Some(running), Some(base), Some(clock)) = (running, sink.base_time(), sink.clock()) else {
+        return Duration::ZERO;
+    };
+    let captured = base + running;
+    let now = clock.time();
+    if now > captured {
+        Duration::from_nanos((now - captured).nseconds())
+    } else {
+        Duration::ZERO
+    }
+}
+
+/// The sample's grey plane, row by row (GStreamer pads rows to 4 bytes).
+fn gray_image(sample: &gst::Sample) -> Result<GrayImage, String> {
+    let caps = sample.caps().ok_or("the sample has no caps")?;
+    let info = gst_video::VideoInfo::from_caps(caps).map_err(|e| e.to_string())?;
+    if info.format() != gst_video::VideoFormat::Gray8 {
+        return Err(format!("format {:?}, expected GRAY8", info.format()));
+    }
+    let buffer = sample.buffer().ok_or("the sample has no buffer")?;
+    let frame = gst_video::VideoFrameRef::from_buffer_ref_readable(buffer, &info).map_err(|e| {
+        format!(
+            "the buffer does not hold a {}×{} frame: {e}",
+            info.width(),
+            info.height()
+        )
+    })?;
+    let (width, height) = (info.width() as usize, info.height() as usize);
+    let stride = usize::try_from(frame.plane_stride()[0]).map_err(|e| e.to_string())?;
+    let plane = frame.plane_data(0).map_err(|e| e.to_string())?;
+    if width == 0 || height == 0 || stride < width || plane.len() < stride * (height - 1) + width {
+        return Err(format!(
+            "{} bytes with stride {stride} cannot hold {width}×{height} pixels",
+            plane.len()
+        ));
+    }
+    let mut pixels = Vec::with_capacity(width * height);
+    for row in plane.chunks(stride).take(height) {
+        pixels.extend_from_slice(&row[..width]);
+    }
+    GrayImage::from_vec(width, height, pixels).map_err(|e| e.to_string())
+}
+
+/// The first error waiting on the bus, described.
+fn bus_error(bus: &gst::Bus) -> Option<String> {
+    while let Some(message) = bus.pop() {
+        if let gst::MessageView::Error(error) = message.view() {
+            return Some(describe_error(error));
+        }
+    }
+    None
+}
+
+fn describe_error(error: &gst::message::Error) -> String {
+    let element = error
+        .src()
+        .map(|src| src.name().to_string())
+        .unwrap_or_else(|| "pipeline".into());
+    match error.debug() {
+        Some(debug) => format!("{element}: {} ({debug})", error.error()),
+        None => format!("{element}: {}", error.error()),
+    }
+}
+
+#[cfg(test)]
+mod tests;
