@@ -10,6 +10,7 @@ mod plot;
 mod profile;
 mod ptu_stereo;
 mod run;
+mod serve;
 mod sim;
 
 use clap::{Parser, Subcommand};
@@ -242,7 +243,7 @@ fn default_log_level(command: &Command) -> &'static str {
 }
 
 /// `N,E` in metres, e.g. `15,0`.
-fn parse_north_east(text: &str) -> Result<[f64; 2], String> {
+pub(crate) fn parse_north_east(text: &str) -> Result<[f64; 2], String> {
     let parts: Vec<&str> = text.split(',').collect();
     let [north, east] = parts[..] else {
         return Err(format!(

@@ -67,6 +67,31 @@ pub struct SimArgs {
     /// tracking, the touchdown error and the success rate, as a table.
     #[arg(long, conflicts_with_all = ["evaluate", "evaluate_hazards"])]
     pub evaluate_paths: bool,
+    /// Serve the world as its own process on the wall clock, standing in for PX4 SITL + Gazebo:
+    /// MAVLink to UDP --mavlink-port, the camera as RTP/H.264 to UDP --video-port; fly it with
+    /// `qosrt run --mavlink udpin:0.0.0.0:14540 --camera rtp-h264:5600 --control`.
+    #[arg(long, conflicts_with_all = ["evaluate", "evaluate_hazards", "evaluate_paths", "runs", "svg", "fixed_levels", "tracking_s"])]
+    pub serve: bool,
+    /// Who flies the served vehicle: sim (the world's own), or px4-sih[:INSTANCE] (PX4 SITL's
+    /// SIH, whose true pose the world reads on UDP 19410+INSTANCE).
+    #[arg(long, default_value = "sim", requires = "serve")]
+    pub vehicle: sitl::serve::ServeVehicle,
+    /// The UDP port on 127.0.0.1 the simulated autopilot sends MAVLink to.
+    #[arg(long, default_value_t = 14540, requires = "serve")]
+    pub mavlink_port: u16,
+    /// The UDP port on 127.0.0.1 the camera's RTP/H.264 stream goes to.
+    #[arg(long, default_value_t = 5600, requires = "serve")]
+    pub video_port: u16,
+    /// Serve MAVLink only, no camera stream.
+    #[arg(long, requires = "serve")]
+    pub no_video: bool,
+    /// Where the tractor waits, metres north and east of the take-off point (give `qosrt run`
+    /// the same).
+    #[arg(long, value_name = "N,E", value_parser = crate::parse_north_east, default_value = "15,0", requires = "serve")]
+    pub meeting_point_ne_m: [f64; 2],
+    /// The served world stops after this long.
+    #[arg(long, value_name = "S", default_value_t = 600.0, requires = "serve")]
+    pub max_time_s: f64,
 }
 
 impl SimArgs {
@@ -116,6 +141,9 @@ pub fn run(args: &SimArgs) -> ExitCode {
     let Some((model, registry)) = load(&args.file, args.json) else {
         return ExitCode::from(EXIT_INVALID_CONFIG);
     };
+    if args.serve {
+        return crate::serve::run(&model, args);
+    }
     if args.evaluate {
         return evaluate(&model, &registry, args);
     }

@@ -3,7 +3,12 @@
 //! runtime only as a real vehicle does: MAVLink over UDP and camera frames.
 //!
 //! [`mission::simulate`] flies one mission in lockstep: a virtual clock advanced tick by tick
-//! with the world, deterministic for a seed and faster than real time.
+//! with the world, deterministic for a seed and faster than real time. [`serve::serve`] runs
+//! the world alone on the wall clock, for a runtime in another process (`qosrt sim --serve`).
 
 pub mod hazard_score;
 pub mod mission;
+pub mod px4_sih;
+pub mod serve;
+#[cfg(feature = "gstreamer")]
+pub mod video_out;

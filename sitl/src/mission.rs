@@ -182,18 +182,11 @@ pub fn simulate(
         .parked();
     let mut vehicle =
         Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(|e| setup(&e))?;
-    let wind_config = match (options.wind_speed_m_s > 0.0, options.wind_kind) {
-        (false, _) => WindConfig::Calm,
-        (true, WindKind::Gusts) => WindConfig::Gusts {
-            speed_m_s: options.wind_speed_m_s,
-            direction_from_rad: std::f64::consts::FRAC_PI_2,
-        },
-        (true, WindKind::Dryden) => WindConfig::Dryden {
-            speed_m_s: options.wind_speed_m_s,
-            direction_from_rad: std::f64::consts::FRAC_PI_2,
-        },
-    };
-    let mut wind = Wind::new(wind_config, options.seed ^ 0x5749_4e44).map_err(|e| setup(&e))?;
+    let mut wind = Wind::new(
+        wind_config(options.wind_speed_m_s, options.wind_kind),
+        options.seed ^ 0x5749_4e44,
+    )
+    .map_err(|e| setup(&e))?;
     let camera_config = camera_config(model);
     let camera_period_s = 1.0 / camera_config.rate_fps;
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
@@ -601,9 +594,24 @@ pub fn simulate(
     })
 }
 
+/// The wind to fly in: from the east, as the seed's.
+pub(crate) fn wind_config(speed_m_s: f64, kind: WindKind) -> WindConfig {
+    match (speed_m_s > 0.0, kind) {
+        (false, _) => WindConfig::Calm,
+        (true, WindKind::Gusts) => WindConfig::Gusts {
+            speed_m_s,
+            direction_from_rad: std::f64::consts::FRAC_PI_2,
+        },
+        (true, WindKind::Dryden) => WindConfig::Dryden {
+            speed_m_s,
+            direction_from_rad: std::f64::consts::FRAC_PI_2,
+        },
+    }
+}
+
 /// The camera the tracker's params describe (field of view and image size: the
 /// `kalman_tracker`'s, else the `hybrid_tracking`'s), at 10 fps like the seed's.
-fn camera_config(model: &MissionModel) -> SimCameraConfig {
+pub(crate) fn camera_config(model: &MissionModel) -> SimCameraConfig {
     let mut config = SimCameraConfig::default();
     let number = |key| {
         let config = &model.config;
@@ -683,7 +691,7 @@ fn track_scatter(track_ne_m: &[[f64; 2]]) -> TrackScatterConfig {
 /// Track length that holds the full set of hazards (one every ~9 m).
 pub const FULL_HAZARD_TRACK_M: f64 = 290.0;
 
-fn pad_pose(tractor: &Tractor) -> PadPose {
+pub(crate) fn pad_pose(tractor: &Tractor) -> PadPose {
     let pad = tractor.pad();
     PadPose {
         north_m: pad.centre_ned_m.x,

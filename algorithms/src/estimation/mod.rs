@@ -1,6 +1,7 @@
 //! Estimation: the pad's position from a pixel, the relative-position Kalman tracker and the
 //! platform's velocity (seed 003, §IV-A and §IV-B).
 
+pub mod attitude_history;
 pub mod kalman;
 pub mod platform_velocity;
 pub mod projection;

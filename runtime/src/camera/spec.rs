@@ -124,13 +124,19 @@ impl CameraSpec {
 }
 
 /// Receives RTP/H.264 on a UDP port: the caps PX4's Gazebo camera documentation gives for
-/// port 5600.
+/// port 5600. The jitter buffer stamps each frame from its RTP timestamp (the sender's capture
+/// clock, skew-corrected) rather than its arrival: frames that arrive bunched together keep
+/// their true spacing, which the tracker's velocity estimate depends on.
 pub fn rtp_h264_pipeline(port: u16) -> String {
     format!(
         "udpsrc port={port} caps=\"application/x-rtp,media=video,clock-rate=90000,\
-         encoding-name=H264,payload=96\" ! rtph264depay ! h264parse ! avdec_h264 ! videoconvert"
+         encoding-name=H264,payload=96\" ! rtpjitterbuffer latency={RTP_JITTER_LATENCY_MS} \
+         ! rtph264depay ! h264parse ! avdec_h264 ! videoconvert"
     )
 }
+
+/// The jitter buffer's wait for late packets: enough for a loopback or wired link.
+pub const RTP_JITTER_LATENCY_MS: u32 = 30;
 
 /// A value for a GStreamer pipeline description, quoted so spaces and `!` stay in it.
 fn quoted(value: &str) -> String {

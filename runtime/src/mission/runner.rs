@@ -96,6 +96,8 @@ pub struct MissionRunner<S: TaskScheduler> {
     link: MavlinkLink,
     sequencer: MissionSequencer,
     camera: Option<Box<dyn CameraSource>>,
+    /// The landing task's last mode.
+    last_landing_mode: Option<algorithms::control::landing::LandingMode>,
     /// The camera's counters when it ended.
     ended_camera_stats: Option<crate::camera::CameraStats>,
     options: RunnerOptions,
@@ -142,6 +144,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             sequencer: MissionSequencer::new(plan),
             camera,
             ended_camera_stats: None,
+            last_landing_mode: None,
             options,
             phase: None,
             land_now: None,
@@ -181,6 +184,13 @@ impl<S: TaskScheduler> MissionRunner<S> {
             .latest()
             .filter(|m| now_s - m.stamp.as_secs_f64() <= SETPOINT_MAX_AGE_S)
             .map(|m| m.value);
+        // Every change of the landing's state is an event: how a landing went, or why not.
+        if let Some(mode) = landing.map(|l| l.mode) {
+            if self.last_landing_mode != Some(mode) {
+                self.last_landing_mode = Some(mode);
+                self.log.event(now_s, format!("landing: {mode:?}"));
+            }
+        }
         let telemetry = self.link.telemetry();
         let view = match (telemetry.autopilot(), telemetry.position_ned_m()) {
             (Some(status), Some(position_ned_m)) => Some(AutopilotView {
@@ -325,6 +335,11 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 Ok(Some(captured)) => {
                     self.log.frames += 1;
                     let capture_s = captured.capture_time_s.min(now_s);
+                    tracing::debug!(
+                        frame = captured.frame.frame_index,
+                        age_ms = (now_s - capture_s) * 1e3,
+                        "camera frame"
+                    );
                     self.frames
                         .publish(Timestamp::from_secs_f64(capture_s.max(0.0)), captured.frame);
                 }

@@ -8,12 +8,17 @@ use crate::task::{Task, TaskContext, TaskError};
 use crate::topics::{
     MarkerObservation, RelativeState, VehicleState, LANDING_MARKER, RELATIVE_STATE, VEHICLE_STATE,
 };
+use algorithms::estimation::attitude_history::{AttitudeHistory, AttitudeSample};
 use algorithms::estimation::kalman::{FixOutcome, MotionInput, Tracker, TrackerConfig, VisionFix};
 use algorithms::estimation::platform_velocity::{
     PlatformFix, PlatformVelocityConfig, PlatformVelocityEstimator,
 };
 use algorithms::estimation::projection::pad_relative_to_uav_ned_m;
 use algorithms::vision::camera::PinholeCamera;
+
+/// How far back a frame's capture can be looked up (a frame older than this is projected
+/// with the oldest attitude kept).
+const ATTITUDE_HISTORY_S: f64 = 1.0;
 use nalgebra::{Matrix3, Vector3};
 use serde::Deserialize;
 
@@ -62,6 +67,8 @@ struct TrackerTask {
     tracker: Tracker,
     platform: PlatformVelocityEstimator,
     last_fix_time_s: Option<f64>,
+    /// The vehicle's recent attitude and height, to project a fix as at its capture.
+    attitude_history: AttitudeHistory,
     vehicle: Option<Subscriber<VehicleState>>,
     markers: Option<Subscriber<MarkerObservation>>,
     output: Option<Publisher<RelativeState>>,
@@ -98,6 +105,7 @@ impl TrackerTask {
             })
             .map_err(|e| bad(&e))?,
             last_fix_time_s: None,
+            attitude_history: AttitudeHistory::new(ATTITUDE_HISTORY_S),
             vehicle: None,
             markers: None,
             output: None,
@@ -122,9 +130,15 @@ impl Task for TrackerTask {
             return Err(TaskError::failed("stepped before start"));
         };
         // Without the vehicle's attitude and height there is nothing to project with.
-        let Some(state) = vehicle.latest().map(|m| m.value) else {
+        let Some(latest) = vehicle.latest() else {
             return Ok(());
         };
+        let state = latest.value;
+        self.attitude_history.push(AttitudeSample {
+            time_s: latest.stamp.as_secs_f64(),
+            attitude: state.attitude,
+            height_above_pad_m: state.height_above_pad_m,
+        });
         let now_s = ctx.now().as_secs_f64();
         let platform_velocity = self.platform.velocity().map(|p| p.velocity_ned_mps);
         if self.tracker.estimate().is_some() {
@@ -140,10 +154,19 @@ impl Task for TrackerTask {
         if let Some(message) = markers.take_new() {
             if let Some(observation) = &message.value.observation {
                 let [u, v] = observation.centre_px;
+                // The vehicle as it was when the frame was exposed.
+                let at_capture = self
+                    .attitude_history
+                    .at(message.stamp.as_secs_f64())
+                    .unwrap_or(AttitudeSample {
+                        time_s: now_s,
+                        attitude: state.attitude,
+                        height_above_pad_m: state.height_above_pad_m,
+                    });
                 match pad_relative_to_uav_ned_m(
                     &self.camera,
-                    &state.attitude,
-                    state.height_above_pad_m,
+                    &at_capture.attitude,
+                    at_capture.height_above_pad_m,
                     u,
                     v,
                 ) {

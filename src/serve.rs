@@ -1,0 +1,122 @@
+//! `qosrt sim --serve`: the simulated world as its own process (see `sitl::serve`), printing
+//! its truth as it goes and the outcome at the end.
+
+use crate::sim::{SimArgs, EXIT_NOT_LANDED};
+use runtime::energy::MissionModel;
+use sitl::mission::WindKind;
+use sitl::serve::{serve, ServeOptions, ServedTouchdown, Truth};
+use std::net::SocketAddr;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+pub fn run(model: &MissionModel, args: &SimArgs) -> ExitCode {
+    if !(args.max_time_s.is_finite() && args.max_time_s > 0.0) {
+        eprintln!(
+            "error: --max-time-s must be a positive number of seconds, found {}",
+            args.max_time_s
+        );
+        return ExitCode::from(crate::check::EXIT_INVALID_CONFIG);
+    }
+    let options = ServeOptions {
+        path: args.path,
+        wind_speed_m_s: args.wind_m_s,
+        wind_kind: if args.dryden {
+            WindKind::Dryden
+        } else {
+            WindKind::Gusts
+        },
+        platform_speed_m_s: args.platform_speed_m_s,
+        seed: args.seed,
+        meeting_point_ne_m: args.meeting_point_ne_m,
+        vehicle: args.vehicle,
+        mavlink_addr: SocketAddr::from(([127, 0, 0, 1], args.mavlink_port)),
+        video_port: (!args.no_video).then_some(args.video_port),
+        max_time_s: args.max_time_s,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        if let Err(error) = ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst)) {
+            eprintln!("error: {error}");
+            return ExitCode::FAILURE;
+        }
+    }
+    let [north_m, east_m] = options.meeting_point_ne_m;
+    eprintln!(
+        "qosrt sim --serve: MAVLink to udp:127.0.0.1:{}{}; the tractor waits at {north_m},{east_m} \
+         (qosrt run --meeting-point-ne-m {north_m},{east_m})",
+        args.mavlink_port,
+        match options.video_port {
+            Some(port) => format!(", camera as RTP/H.264 to udp:127.0.0.1:{port}"),
+            None => String::new(),
+        },
+    );
+    // With --json, stdout holds only the outcome; the truth goes to stderr.
+    let json = args.json;
+    let print_truth = |truth: &Truth, touchdown: Option<&ServedTouchdown>| {
+        let line = describe(truth, touchdown);
+        if json {
+            eprintln!("{line}");
+        } else {
+            println!("{line}");
+        }
+    };
+    let outcome = match serve(model, &options, &stop, print_truth) {
+        Ok(outcome) => outcome,
+        Err(error) => {
+            eprintln!("error: {error}");
+            return ExitCode::FAILURE;
+        }
+    };
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&outcome).expect("outcomes serialise")
+        );
+    } else {
+        println!(
+            "{}: {}; {} frames rendered, {} streamed{}",
+            outcome.vehicle,
+            outcome.end,
+            outcome.frames_rendered,
+            outcome.frames_sent,
+            outcome
+                .video_latency_ms
+                .map(|[p50, p99]| format!(" (capture to wire {p50:.1} ms median, {p99:.1} ms p99)"))
+                .unwrap_or_default()
+        );
+    }
+    if outcome.landed_on_pad {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(EXIT_NOT_LANDED)
+    }
+}
+
+/// One line of the world's truth.
+fn describe(truth: &Truth, touchdown: Option<&ServedTouchdown>) -> String {
+    let [vn, ve, vd] = truth.vehicle_ned_m;
+    let [pn, pe, _] = truth.pad_ned_m;
+    let mut line = format!(
+        "t {:6.1} s  vehicle N {vn:7.2} E {ve:7.2} alt {:5.2} m  pad N {pn:7.2} E {pe:7.2}{}  {:.2} m apart",
+        truth.time_s,
+        -vd,
+        if truth.tractor_moving { " moving" } else { " parked" },
+        (vn - pn).hypot(ve - pe),
+    );
+    if let Some(touchdown) = touchdown {
+        line += &format!(
+            "\ntouchdown at {:.1} s: {} pad, {:.3} m from its centre, {:.2} m/s down",
+            touchdown.time_s,
+            if touchdown.on_pad {
+                "on the"
+            } else {
+                "off the"
+            },
+            touchdown.horizontal_error_m,
+            touchdown.vertical_speed_m_s
+        );
+    }
+    line
+}
