@@ -53,6 +53,8 @@ struct FlightReport<'a> {
     camera_errors: u64,
     /// What the camera source counted: delivered, dropped, late, malformed, stalls.
     camera: Option<runtime::camera::CameraStats>,
+    /// From a frame's capture to the first velocity setpoint sent with its fix (µs).
+    capture_to_setpoint: runtime::scheduler::DurationSummary,
     finished: bool,
 }
 
@@ -241,6 +243,7 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
             frames: log.frames,
             camera_errors: log.camera_errors,
             camera: runner.camera_stats(),
+            capture_to_setpoint: log.capture_to_setpoint(),
             finished: runner.status().finished,
         };
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -310,6 +313,15 @@ fn summary(log: &MissionLog, stats: &[TaskStats], wall_s: f64) -> String {
         log.frames,
         log.camera_errors
     );
+    let latency = log.capture_to_setpoint();
+    if latency.count > 0 {
+        out += &format!(
+            "vision loop: capture to setpoint {:.0} ms median, {:.0} ms p99 ({} fixes)\n",
+            latency.p50_us * 1e-3,
+            latency.p99_us * 1e-3,
+            latency.count
+        );
+    }
     if let Some(last) = log.battery.last {
         out += &format!(
             "battery: {} samples; last {:.2} V, {:.1} A, {:.0} mAh consumed, {:.0} % remaining\n",

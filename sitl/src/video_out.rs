@@ -107,14 +107,29 @@ impl RtpH264Sender {
         let sink_pad = wire
             .static_pad("sink")
             .ok_or_else(|| VideoError::Gstreamer("the udpsink has no sink pad".into()))?;
-        let probe_wire = wire.clone();
-        sink_pad.add_probe(gst::PadProbeType::BUFFER, move |_, info| {
-            // Every RTP packet of a frame carries the frame's PTS, the capture's.
-            if let Some(buffer) = info.buffer() {
-                if let (Some(pts), Some(base), Some(clock)) =
-                    (buffer.pts(), probe_wire.base_time(), probe_wire.clock())
-                {
-                    let captured = base + pts;
+        // The pipeline's clock and base time (a weak reference: the pipeline owns the probe).
+        let probe_pipeline = pipeline.downgrade();
+        // The payloader pushes a frame's RTP packets as a buffer list, or one by one.
+        let probe_types = gst::PadProbeType::BUFFER | gst::PadProbeType::BUFFER_LIST;
+        sink_pad.add_probe(probe_types, move |pad, info| {
+            let pts = match &info.data {
+                Some(gst::PadProbeData::Buffer(buffer)) => buffer.pts(),
+                Some(gst::PadProbeData::BufferList(list)) => list.get(0).and_then(|b| b.pts()),
+                _ => None,
+            };
+            // The encoder shifts timestamps (x264enc by 1000 h): running time is in the segment.
+            let running = pts.and_then(|pts| {
+                let segment = pad.sticky_event::<gst::event::Segment>(0)?;
+                segment
+                    .segment()
+                    .downcast_ref::<gst::ClockTime>()?
+                    .to_running_time(pts)
+            });
+            let pipeline = probe_pipeline.upgrade();
+            if let (Some(running), Some(pipeline)) = (running, pipeline) {
+                if let (Some(base), Some(clock)) = (pipeline.base_time(), pipeline.clock()) {
+                    // Every RTP packet of a frame carries the frame's PTS, the capture's.
+                    let captured = base + running;
                     let now = clock.time();
                     if now > captured {
                         let mut latencies = probe_latencies

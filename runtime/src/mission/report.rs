@@ -101,9 +101,18 @@ pub struct MissionLog {
     pub frames: u64,
     pub camera_errors: u64,
     pub telemetry_refused: u64,
+    /// From a frame's capture (as its source stamped it) to the first velocity setpoint sent
+    /// with the vision fix it gave.
+    #[serde(skip)]
+    pub(crate) capture_to_setpoint: crate::scheduler::stats::Histogram,
 }
 
 impl MissionLog {
+    /// Capture-to-setpoint latency of the vision loop (count 0 when it never steered).
+    pub fn capture_to_setpoint(&self) -> crate::scheduler::DurationSummary {
+        self.capture_to_setpoint.summary()
+    }
+
     pub fn event(&mut self, time_s: f64, what: String) {
         self.events.push((time_s, what));
     }

@@ -96,6 +96,8 @@ pub struct MissionRunner<S: TaskScheduler> {
     link: MavlinkLink,
     sequencer: MissionSequencer,
     camera: Option<Box<dyn CameraSource>>,
+    /// The vision fix whose latency was last recorded.
+    last_timed_fix_s: Option<f64>,
     /// The landing task's last mode.
     last_landing_mode: Option<algorithms::control::landing::LandingMode>,
     /// The camera's counters when it ended.
@@ -145,6 +147,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             camera,
             ended_camera_stats: None,
             last_landing_mode: None,
+            last_timed_fix_s: None,
             options,
             phase: None,
             land_now: None,
@@ -217,6 +220,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
         for command in &commands {
             self.link.send(command)?;
         }
+        self.note_vision_latency(now_s, &commands);
         if let Some(t_ns) = lockstep {
             self.link.end_tick(t_ns)?;
         }
@@ -238,6 +242,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
         for command in &commands {
             self.link.send(command)?;
         }
+        self.note_vision_latency(now_s, &commands);
         Ok(())
     }
 
@@ -335,11 +340,6 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 Ok(Some(captured)) => {
                     self.log.frames += 1;
                     let capture_s = captured.capture_time_s.min(now_s);
-                    tracing::debug!(
-                        frame = captured.frame.frame_index,
-                        age_ms = (now_s - capture_s) * 1e3,
-                        "camera frame"
-                    );
                     self.frames
                         .publish(Timestamp::from_secs_f64(capture_s.max(0.0)), captured.frame);
                 }
@@ -415,6 +415,22 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 },
             )
             .collect()
+    }
+
+    /// The first velocity setpoint sent after a new vision fix: capture-to-setpoint latency.
+    fn note_vision_latency(&mut self, now_s: f64, commands: &[VehicleCommand]) {
+        let steered = commands
+            .iter()
+            .any(|c| matches!(c, VehicleCommand::VelocityNed { .. }));
+        let fix_s = self.relative.peek().and_then(|m| m.value.last_fix_time_s);
+        if let (true, Some(fix_s)) = (steered, fix_s) {
+            if self.last_timed_fix_s != Some(fix_s) && now_s >= fix_s {
+                self.last_timed_fix_s = Some(fix_s);
+                self.log
+                    .capture_to_setpoint
+                    .record(((now_s - fix_s) * 1e9) as u64);
+            }
+        }
     }
 
     /// LANDING_TARGET from the tracker's latest fix: the pad's direction in the body frame

@@ -39,7 +39,7 @@
 mod cadence;
 mod real_time;
 mod resources;
-mod stats;
+pub(crate) mod stats;
 mod timing;
 mod virtual_time;
 

@@ -104,7 +104,7 @@ impl Histogram {
 }
 
 /// A distribution of durations, in microseconds.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
 pub struct DurationSummary {
     pub count: u64,
     pub p50_us: f64,
