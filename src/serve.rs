@@ -4,7 +4,7 @@
 use crate::sim::{SimArgs, EXIT_NOT_LANDED};
 use runtime::energy::MissionModel;
 use sitl::mission::WindKind;
-use sitl::serve::{serve, ServeOptions, ServedTouchdown, Truth};
+use sitl::serve::{serve, ServeOptions, ServeVehicle, ServedTouchdown, Truth};
 use std::net::SocketAddr;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -43,10 +43,16 @@ pub fn run(model: &MissionModel, args: &SimArgs) -> ExitCode {
         }
     }
     let [north_m, east_m] = options.meeting_point_ne_m;
+    let mavlink = match options.vehicle {
+        ServeVehicle::Simulated => format!("MAVLink to udp:127.0.0.1:{}", args.mavlink_port),
+        ServeVehicle::Px4Sih { instance } => format!(
+            "PX4 SITL instance {instance} flies (its pose from udp:127.0.0.1:{}; its MAVLink is its own)",
+            sitl::px4_sih::SIH_DISPLAY_PORT + u16::from(instance)
+        ),
+    };
     eprintln!(
-        "qosrt sim --serve: MAVLink to udp:127.0.0.1:{}{}; the tractor waits at {north_m},{east_m} \
+        "qosrt sim --serve: {mavlink}{}; the tractor waits at {north_m},{east_m} \
          (qosrt run --meeting-point-ne-m {north_m},{east_m})",
-        args.mavlink_port,
         match options.video_port {
             Some(port) => format!(", camera as RTP/H.264 to udp:127.0.0.1:{port}"),
             None => String::new(),

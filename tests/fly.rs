@@ -3,104 +3,14 @@
 //! the vehicle over. Each test runs its own PX4 instance, so they run side by side.
 
 mod common;
-use common::repo_root;
+use common::{qosrt_run, repo_root, report_of, short_mission, Px4};
 
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::net::UdpSocket;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::Path;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-
-/// A running PX4 SITL instance, stopped when dropped.
-struct Px4 {
-    pid: u32,
-    instance: u8,
-}
-
-impl Px4 {
-    /// Starts instance `instance`, or `None` (with a message) when the SITL is not here.
-    fn start(instance: u8) -> Option<Self> {
-        let start = repo_root().join("../shared/px4-sitl/start");
-        if !start.exists() {
-            eprintln!("skipped: {} is absent", start.display());
-            return None;
-        }
-        let output = Command::new(&start)
-            .args(["-i", &instance.to_string()])
-            .output()
-            .expect("the PX4 start script runs");
-        assert!(
-            output.status.success(),
-            "PX4 did not start: {}",
-            String::from_utf8_lossy(&output.stderr)
-        );
-        let pid = String::from_utf8_lossy(&output.stdout)
-            .trim()
-            .parse()
-            .expect("the start script prints PX4's pid");
-        Some(Self { pid, instance })
-    }
-
-    /// The companion computer's link, as `qosrt run` takes it.
-    fn mavlink(&self) -> String {
-        format!("udpin:0.0.0.0:{}", 14540 + u16::from(self.instance))
-    }
-}
-
-impl Drop for Px4 {
-    fn drop(&mut self) {
-        let _ = Command::new("kill").arg(self.pid.to_string()).status();
-    }
-}
-
-/// The reference mission, made short: 4 s of tracking.
-fn short_mission(dir: &Path, tracking_s: f64) -> PathBuf {
-    let text = std::fs::read_to_string(repo_root().join("qos.toml")).unwrap();
-    let text = text
-        .replace("duration_s = 900.0", &format!("duration_s = {tracking_s}"))
-        .replace(
-            "path = \"profiles/",
-            &format!("path = \"{}/profiles/", repo_root().display()),
-        );
-    let path = dir.join("short.toml");
-    std::fs::write(&path, text).unwrap();
-    path
-}
-
-fn qosrt_run(config: &Path, args: &[&str]) -> Child {
-    Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .arg("run")
-        .arg(config)
-        .args(args)
-        .current_dir(repo_root())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("qosrt runs")
-}
-
-/// Waits for qosrt to exit (killing it after `limit`) and parses its JSON report; stderr is
-/// handed back for messages.
-fn report_of(mut child: Child, limit: Duration) -> (Value, String) {
-    let started = Instant::now();
-    while child.try_wait().unwrap().is_none() {
-        if started.elapsed() > limit {
-            let _ = child.kill();
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(200));
-    }
-    let output = child.wait_with_output().unwrap();
-    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
-    let report = serde_json::from_slice(&output.stdout).unwrap_or_else(|e| {
-        panic!(
-            "no JSON report ({e}), exit {:?}; stderr:\n{stderr}",
-            output.status
-        )
-    });
-    (report, stderr)
-}
 
 fn event_lines(report: &Value) -> Vec<String> {
     report["events"]

@@ -3,8 +3,10 @@
 // Each test crate uses its own part of this module.
 #![allow(dead_code)]
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
 /// The repository's root, where the reference `qos.toml` and `profiles/` are.
 pub fn repo_root() -> PathBuf {
@@ -27,4 +29,100 @@ pub fn output_text(output: &Output) -> String {
         String::from_utf8_lossy(&output.stdout),
         String::from_utf8_lossy(&output.stderr)
     )
+}
+
+/// A running PX4 SITL instance, stopped when dropped.
+pub struct Px4 {
+    pub pid: u32,
+    pub instance: u8,
+}
+
+impl Px4 {
+    /// Starts instance `instance`, or `None` (with a message) when the SITL is not here.
+    pub fn start(instance: u8) -> Option<Self> {
+        let start = repo_root().join("../shared/px4-sitl/start");
+        if !start.exists() {
+            eprintln!("skipped: {} is absent", start.display());
+            return None;
+        }
+        let output = Command::new(&start)
+            .args(["-i", &instance.to_string()])
+            .output()
+            .expect("the PX4 start script runs");
+        assert!(
+            output.status.success(),
+            "PX4 did not start: {}",
+            String::from_utf8_lossy(&output.stderr)
+        );
+        let pid = String::from_utf8_lossy(&output.stdout)
+            .trim()
+            .parse()
+            .expect("the start script prints PX4's pid");
+        Some(Self { pid, instance })
+    }
+
+    /// The companion computer's link, as `qosrt run` takes it.
+    pub fn mavlink(&self) -> String {
+        format!("udpin:0.0.0.0:{}", 14540 + u16::from(self.instance))
+    }
+}
+
+impl Drop for Px4 {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").arg(self.pid.to_string()).status();
+    }
+}
+
+/// The reference mission, made short: 4 s of tracking.
+pub fn short_mission(dir: &Path, tracking_s: f64) -> PathBuf {
+    let text = std::fs::read_to_string(repo_root().join("qos.toml")).unwrap();
+    let text = text
+        .replace("duration_s = 900.0", &format!("duration_s = {tracking_s}"))
+        .replace(
+            "path = \"profiles/",
+            &format!("path = \"{}/profiles/", repo_root().display()),
+        );
+    let path = dir.join("short.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Waits for qosrt to exit (killing it after `limit`) and parses its JSON report; stderr is
+/// handed back for messages.
+pub fn report_of(mut child: Child, limit: Duration) -> (Value, String) {
+    let started = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if started.elapsed() > limit {
+            let _ = child.kill();
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let output = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+    let report = serde_json::from_slice(&output.stdout).unwrap_or_else(|e| {
+        panic!(
+            "no JSON report ({e}), exit {:?}; stderr:\n{stderr}",
+            output.status
+        )
+    });
+    (report, stderr)
+}
+
+/// Starts `qosrt SUBCOMMAND CONFIG ARGS…` in the background, its output piped.
+pub fn qosrt_spawn(subcommand: &str, config: &Path, args: &[&str]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_qosrt"))
+        .arg(subcommand)
+        .arg(config)
+        .args(args)
+        .current_dir(repo_root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("qosrt runs")
+}
+
+/// `qosrt run CONFIG ARGS…` in the background.
+pub fn qosrt_run(config: &Path, args: &[&str]) -> Child {
+    qosrt_spawn("run", config, args)
 }

@@ -1,0 +1,150 @@
+//! (feature `gstreamer`) Software in the loop across processes: `qosrt sim --serve` is the
+//! world (its own vehicle, or the real PX4 SITL's), `qosrt run --control` is the companion
+//! computer; they meet only over real UDP sockets, MAVLink and an RTP/H.264 video stream, on
+//! the wall clock. The world judges the touchdown.
+#![cfg(feature = "gstreamer")]
+
+mod common;
+use common::{qosrt_run, qosrt_spawn, report_of, short_mission, Px4};
+
+use serde_json::Value;
+use std::net::UdpSocket;
+use std::time::Duration;
+
+/// A UDP port nobody holds right now.
+fn free_udp_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// The world's touchdown, asserted on the pad within `limit_m`.
+fn assert_landed_within(world: &Value, limit_m: f64, context: &str) -> f64 {
+    assert_eq!(world["landed_on_pad"], true, "{world:#}\n{context}");
+    let error_m = world["touchdown"]["horizontal_error_m"].as_f64().unwrap();
+    assert!(
+        error_m <= limit_m,
+        "touchdown {error_m} m from the pad's centre"
+    );
+    error_m
+}
+
+/// What the runtime's report says of the vision loop.
+fn assert_flew_by_vision(run: &Value, stderr: &str) {
+    assert_eq!(run["finished"], true, "{stderr}");
+    let events: Vec<&str> = run["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e[1].as_str().unwrap())
+        .collect();
+    assert!(events.contains(&"landing: FinalLanding"), "{events:?}");
+    assert!(events.contains(&"landed and disarmed"), "{events:?}");
+    // Frames came through the video stream, whole, and steered the vehicle.
+    assert!(
+        run["camera"]["delivered"].as_u64().unwrap() > 100,
+        "{run:#}"
+    );
+    assert_eq!(run["camera"]["malformed"], 0);
+    let latency = &run["capture_to_setpoint"];
+    assert!(latency["count"].as_u64().unwrap() > 20, "{latency}");
+    eprintln!(
+        "capture to setpoint: {:.0} ms median, {:.0} ms p99",
+        latency["p50_us"].as_f64().unwrap() * 1e-3,
+        latency["p99_us"].as_f64().unwrap() * 1e-3
+    );
+}
+
+#[test]
+fn the_served_world_and_qosrt_run_land_on_the_moving_pad() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = short_mission(dir.path(), 10.0);
+    let mavlink_port = free_udp_port().to_string();
+    let video_port = free_udp_port().to_string();
+    let world = qosrt_spawn(
+        "sim",
+        &config,
+        &[
+            "--serve",
+            "--mavlink-port",
+            &mavlink_port,
+            "--video-port",
+            &video_port,
+            "--max-time-s",
+            "90",
+            "--json",
+        ],
+    );
+    let run = qosrt_run(
+        &config,
+        &[
+            "--mavlink",
+            &format!("udpin:127.0.0.1:{mavlink_port}"),
+            "--camera",
+            &format!("rtp-h264:{video_port}"),
+            "--control",
+            "--meeting-point-ne-m",
+            "15,0",
+            "--duration-s",
+            "85",
+            "--json",
+        ],
+    );
+    let (run_report, run_stderr) = report_of(run, Duration::from_secs(100));
+    let (world_report, world_stderr) = report_of(world, Duration::from_secs(30));
+    let error_m = assert_landed_within(&world_report, 0.2, &world_stderr);
+    assert_flew_by_vision(&run_report, &run_stderr);
+    eprintln!(
+        "two processes: touchdown {error_m:.3} m from the centre; capture to wire {:?} ms",
+        world_report["video_latency_ms"]
+    );
+}
+
+#[test]
+fn the_real_px4_lands_on_the_moving_pad_the_world_renders() {
+    let Some(px4) = Px4::start(6) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let config = short_mission(dir.path(), 10.0);
+    let video_port = free_udp_port().to_string();
+    let world = qosrt_spawn(
+        "sim",
+        &config,
+        &[
+            "--serve",
+            "--vehicle",
+            &format!("px4-sih:{}", px4.instance),
+            "--video-port",
+            &video_port,
+            "--platform-speed-mps",
+            "1.0",
+            "--meeting-point-ne-m",
+            "5,0",
+            "--max-time-s",
+            "120",
+            "--json",
+        ],
+    );
+    let run = qosrt_run(
+        &config,
+        &[
+            "--mavlink",
+            &px4.mavlink(),
+            "--camera",
+            &format!("rtp-h264:{video_port}"),
+            "--control",
+            "--meeting-point-ne-m",
+            "5,0",
+            "--duration-s",
+            "110",
+            "--json",
+        ],
+    );
+    let (run_report, run_stderr) = report_of(run, Duration::from_secs(130));
+    let (world_report, world_stderr) = report_of(world, Duration::from_secs(30));
+    assert_eq!(run_report["autopilot"], "PX4");
+    let error_m = assert_landed_within(&world_report, 0.3, &world_stderr);
+    assert_flew_by_vision(&run_report, &run_stderr);
+    eprintln!("PX4 SIH: touchdown {error_m:.3} m from the pad's centre");
+}
