@@ -8,7 +8,6 @@ use common::{qosrt_run, repo_root, report_of, short_mission, Px4};
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::net::UdpSocket;
-use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
