@@ -483,8 +483,9 @@ fn apply_commands(
 
 #[cfg(feature = "gstreamer")]
 type Video = Option<crate::video_out::RtpH264Sender>;
+/// Without GStreamer the world has no video stream to feed.
 #[cfg(not(feature = "gstreamer"))]
-type Video = ();
+struct Video;
 
 #[cfg(feature = "gstreamer")]
 fn open_video(
@@ -510,7 +511,7 @@ fn open_video(
 ) -> Result<Video, ServeError> {
     match port {
         Some(_) => Err(ServeError::NoVideo),
-        None => Ok(()),
+        None => Ok(Video),
     }
 }
 
