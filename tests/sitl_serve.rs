@@ -1,17 +1,20 @@
-//! (feature `gstreamer`) Software in the loop across processes: `qosrt sim --serve` is the
-//! world (its own vehicle, or the real PX4 SITL's), `qosrt run --control` is the companion
-//! computer; they meet only over real UDP sockets, MAVLink and an RTP/H.264 video stream, on
-//! the wall clock. The world judges the touchdown.
-#![cfg(feature = "gstreamer")]
+//! Software in the loop across processes: `qosrt sim --serve` is the world (its own vehicle, or
+//! the real PX4 SITL's), `qosrt run --control` is the companion computer; they meet only over
+//! real UDP sockets, MAVLink and (feature `gstreamer`) an RTP/H.264 video stream, on the wall
+//! clock. The world judges the touchdown.
 
 mod common;
-use common::{qosrt_run, qosrt_spawn, report_of, short_mission, Px4};
+use common::{qosrt, qosrt_spawn, report_of, short_mission};
+#[cfg(feature = "gstreamer")]
+use common::{qosrt_run, Px4};
 
+#[cfg(feature = "gstreamer")]
 use serde_json::Value;
 use std::net::UdpSocket;
 use std::time::Duration;
 
 /// A UDP port nobody holds right now.
+#[cfg(feature = "gstreamer")]
 fn free_udp_port() -> u16 {
     UdpSocket::bind("127.0.0.1:0")
         .unwrap()
@@ -20,7 +23,77 @@ fn free_udp_port() -> u16 {
         .port()
 }
 
+/// Any build serves MAVLink alone: a companion on the port hears the world's autopilot as it
+/// would PX4 SITL, and the world stops at its time limit, saying so.
+#[test]
+fn without_video_the_world_serves_mavlink_and_stops_at_its_time_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = short_mission(dir.path(), 10.0);
+    let companion = UdpSocket::bind("127.0.0.1:0").unwrap();
+    companion
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .unwrap();
+    let port = companion.local_addr().unwrap().port().to_string();
+    let world = qosrt_spawn(
+        "sim",
+        &config,
+        &[
+            "--serve",
+            "--no-video",
+            "--mavlink-port",
+            &port,
+            "--max-time-s",
+            "2",
+            "--json",
+        ],
+    );
+    let mut buffer = [0u8; 2048];
+    let (length, _) = companion
+        .recv_from(&mut buffer)
+        .expect("the world's MAVLink");
+    // A MAVLink 2 frame from system 1, component 1.
+    assert_eq!(buffer[0], 0xFD, "{:?}", &buffer[..length]);
+    assert_eq!((buffer[5], buffer[6]), (1, 1));
+    let (outcome, stderr) = report_of(world, Duration::from_secs(20));
+    assert_eq!(outcome["end"], "time limit of 2 s reached", "{stderr}");
+    assert_eq!(outcome["landed_on_pad"], false);
+    assert_eq!(outcome["frames_sent"], 0);
+    assert!(outcome["frames_rendered"].as_u64().unwrap() >= 15);
+}
+
+/// Without GStreamer the video stream is refused, with how to get it.
+#[cfg(not(feature = "gstreamer"))]
+#[test]
+fn without_gstreamer_the_video_stream_is_refused_with_how_to_build_it() {
+    let output = qosrt(&["sim", "--serve", "--max-time-s", "1"]);
+    assert_eq!(output.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.contains("--features gstreamer"), "{stderr}");
+}
+
+/// Bad values are named before anything starts.
+#[test]
+fn bad_serve_options_are_named() {
+    for (args, wanted) in [
+        (&["--vehicle", "gazebo"][..], "expected sim, px4-sih"),
+        (&["--vehicle", "px4-sih:12"][..], "the instance is 0-9"),
+        (
+            &["--max-time-s", "0", "--no-video"][..],
+            "--max-time-s must be a positive",
+        ),
+        (&["--mavlink-port", "99999"][..], "99999"),
+    ] {
+        let mut all = vec!["sim", "--serve"];
+        all.extend_from_slice(args);
+        let output = qosrt(&all);
+        assert!(!output.status.success(), "{all:?}");
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(stderr.contains(wanted), "{all:?}: {stderr}");
+    }
+}
+
 /// The world's touchdown, asserted on the pad within `limit_m`.
+#[cfg(feature = "gstreamer")]
 fn assert_landed_within(world: &Value, limit_m: f64, context: &str) -> f64 {
     assert_eq!(world["landed_on_pad"], true, "{world:#}\n{context}");
     let error_m = world["touchdown"]["horizontal_error_m"].as_f64().unwrap();
@@ -32,6 +105,7 @@ fn assert_landed_within(world: &Value, limit_m: f64, context: &str) -> f64 {
 }
 
 /// What the runtime's report says of the vision loop.
+#[cfg(feature = "gstreamer")]
 fn assert_flew_by_vision(run: &Value, stderr: &str) {
     assert_eq!(run["finished"], true, "{stderr}");
     let events: Vec<&str> = run["events"]
@@ -57,6 +131,7 @@ fn assert_flew_by_vision(run: &Value, stderr: &str) {
     );
 }
 
+#[cfg(feature = "gstreamer")]
 #[test]
 fn the_served_world_and_qosrt_run_land_on_the_moving_pad() {
     let dir = tempfile::tempdir().unwrap();
@@ -102,6 +177,7 @@ fn the_served_world_and_qosrt_run_land_on_the_moving_pad() {
     );
 }
 
+#[cfg(feature = "gstreamer")]
 #[test]
 fn the_real_px4_lands_on_the_moving_pad_the_world_renders() {
     let Some(px4) = Px4::start(6) else { return };
