@@ -212,17 +212,7 @@ pub fn simulate(
     )
     .map_err(|e| setup(&e))?;
     let mut battery = SimBattery::new(pack);
-    // Without a hover figure in the config, the tracking phase's flight power stands in.
-    let hover_power_w = config
-        .flight
-        .hover_power_w
-        .or_else(|| {
-            config
-                .mission
-                .phases
-                .iter()
-                .find_map(|p| config.flight.power_w(&p.name))
-        })
+    let hover_power_w = hover_power_w(model)
         .ok_or_else(|| SimError::Setup("[flight] gives no hover_power_w".into()))?;
     let rotors = RotorPowerModel::iris(hover_power_w);
     rotors.validate().map_err(|e| setup(&e))?;
@@ -591,6 +581,18 @@ pub fn simulate(
         speedup: end_s / wall_s.max(1e-9),
         localisation: localisation.finish(),
         track,
+    })
+}
+
+/// The rotors' hover power: the config's, or without one the first phase's flight power.
+pub(crate) fn hover_power_w(model: &MissionModel) -> Option<f64> {
+    let config = &model.config;
+    config.flight.hover_power_w.or_else(|| {
+        config
+            .mission
+            .phases
+            .iter()
+            .find_map(|p| config.flight.power_w(&p.name))
     })
 }
 
