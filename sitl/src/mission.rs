@@ -56,6 +56,8 @@ pub struct Faults {
     pub link_loss: Option<(f64, f64)>,
     /// The camera keeps delivering its last frame.
     pub camera_freeze: Option<(f64, f64)>,
+    /// The camera delivers nothing (a stalled pipeline, an unplugged camera).
+    pub camera_stall: Option<(f64, f64)>,
 }
 
 /// What to fly.
@@ -455,6 +457,9 @@ pub fn simulate(
                     tracking_started_s = Some(time_s);
                     if let Some((from_s, until_s)) = options.faults.camera_freeze {
                         camera.freeze(time_s + from_s, time_s + until_s);
+                    }
+                    if let Some((from_s, until_s)) = options.faults.camera_stall {
+                        camera.drop_frames(time_s + from_s, time_s + until_s);
                     }
                 }
                 // The tractor drives off once the vehicle is with it.

@@ -280,3 +280,20 @@ fn a_frozen_camera_makes_the_landing_abort_and_retry() {
     assert!(has_event(&outcome, "reacquire"));
     assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
 }
+
+/// A camera that stops delivering (a stalled GStreamer pipeline, an unplugged camera) is met as
+/// a frozen one is: no fresh fix, so the landing climbs to reacquire, then lands once frames
+/// come again.
+#[test]
+fn a_stalled_camera_makes_the_landing_abort_and_retry() {
+    let outcome = fly(SimOptions {
+        faults: Faults {
+            camera_stall: Some((10.0, 16.0)),
+            ..Faults::default()
+        },
+        ..short(3)
+    });
+    assert!(outcome.landing_aborts >= 1, "{:#?}", outcome.events);
+    assert!(has_event(&outcome, "reacquire"));
+    assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
+}
