@@ -23,6 +23,12 @@ fn free_udp_port() -> u16 {
         .port()
 }
 
+/// The flights run one at a time: each is two processes rendering, encoding, decoding and
+/// detecting on the wall clock, and two side by side on a 2-core machine starve each other's
+/// real time (frames late, fixes off), which is not what they test.
+#[cfg(feature = "gstreamer")]
+static ONE_FLIGHT_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 /// Any build serves MAVLink alone: a companion on the port hears the world's autopilot as it
 /// would PX4 SITL, and the world stops at its time limit, saying so.
 #[test]
@@ -134,6 +140,9 @@ fn assert_flew_by_vision(run: &Value, stderr: &str) {
 #[cfg(feature = "gstreamer")]
 #[test]
 fn the_served_world_and_qosrt_run_land_on_the_moving_pad() {
+    let _flight = ONE_FLIGHT_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let dir = tempfile::tempdir().unwrap();
     let config = short_mission(dir.path(), 10.0);
     let mavlink_port = free_udp_port().to_string();
@@ -180,6 +189,9 @@ fn the_served_world_and_qosrt_run_land_on_the_moving_pad() {
 #[cfg(feature = "gstreamer")]
 #[test]
 fn the_real_px4_lands_on_the_moving_pad_the_world_renders() {
+    let _flight = ONE_FLIGHT_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
     let Some(px4) = Px4::start(6) else { return };
     let dir = tempfile::tempdir().unwrap();
     let config = short_mission(dir.path(), 10.0);
