@@ -1,7 +1,14 @@
-//! The GStreamer source against real pipelines: `appsrc` fed by the test, `videotestsrc`, and
-//! pipelines that cannot run.
+//! (feature `gstreamer`) The GStreamer camera source against real pipelines: `appsrc` fed by
+//! the test, `videotestsrc`, and pipelines that cannot run.
+#![cfg(feature = "gstreamer")]
 
-use super::*;
+use std::time::{Duration, Instant};
+
+use gstreamer as gst;
+use gstreamer::prelude::*;
+use gstreamer_app as gst_app;
+use runtime::camera::gstreamer::{GstreamerConfig, GstreamerSource};
+use runtime::camera::{CameraSource, CameraSourceError, CameraStats, CapturedFrame};
 
 /// A live appsrc of 30×24 grey frames: 30 is not a multiple of 4, so rows carry padding.
 const WIDTH: usize = 30;
