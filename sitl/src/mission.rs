@@ -490,13 +490,7 @@ pub fn simulate(
                 .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
                 .map_err(|e| setup(&e))?;
         }
-        let velocity = vehicle.velocity_ned_m_s();
-        let air = velocity - wind.wind_velocity_ned_m_s(time_s, -vehicle.position_ned_m().z);
-        let flight_w = if vehicle.is_flying() {
-            rotors.power_w(air.xy().norm(), -velocity.z)
-        } else {
-            0.0
-        };
+        let flight_w = flight_power_w(&vehicle, &mut wind, &rotors, time_s);
         // The companion draws what the tasks of the phase in flight cost at their levels.
         let companion_w = runner.companion_power_w();
         if let Err(error) = battery.drain(flight_w, companion_w, TICK_S) {
@@ -599,6 +593,23 @@ pub(crate) fn hover_power_w(model: &MissionModel) -> Option<f64> {
             .iter()
             .find_map(|p| config.flight.power_w(&p.name))
     })
+}
+
+/// What the rotors draw now: by the vehicle's airspeed and climb rate while it flies. The wind
+/// is asked every tick, flying or not: its gusts advance with each query.
+pub(crate) fn flight_power_w(
+    vehicle: &Multirotor,
+    wind: &mut Wind,
+    rotors: &RotorPowerModel,
+    time_s: f64,
+) -> f64 {
+    let velocity = vehicle.velocity_ned_m_s();
+    let air = velocity - wind.wind_velocity_ned_m_s(time_s, -vehicle.position_ned_m().z);
+    if vehicle.is_flying() {
+        rotors.power_w(air.xy().norm(), -velocity.z)
+    } else {
+        0.0
+    }
 }
 
 /// The wind to fly in: from the east, as the seed's.

@@ -31,7 +31,8 @@ use sim::vehicle::{Multirotor, VehicleParams};
 use sim::wind::Wind;
 
 use crate::mission::{
-    camera_config, hover_power_w, pad_pose, wind_config, WindKind, PHYSICS_DT_S, TICK_S,
+    camera_config, flight_power_w, hover_power_w, pad_pose, wind_config, WindKind, PHYSICS_DT_S,
+    TICK_S,
 };
 use crate::px4_sih::SihListener;
 
@@ -385,14 +386,7 @@ pub fn serve(
                 rotors,
                 ..
             } => {
-                let velocity = vehicle.velocity_ned_m_s();
-                let air =
-                    velocity - wind.wind_velocity_ned_m_s(time_s, -vehicle.position_ned_m().z);
-                let flight_w = if vehicle.is_flying() {
-                    rotors.power_w(air.xy().norm(), -velocity.z)
-                } else {
-                    0.0
-                };
+                let flight_w = flight_power_w(vehicle, wind, rotors, time_s);
                 // The companion computer's draw is the runtime's to report, not the world's.
                 battery
                     .drain(flight_w, 0.0, TICK_S)
