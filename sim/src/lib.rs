@@ -8,6 +8,7 @@ pub mod flight;
 pub mod hazard_dataset;
 pub mod outcome;
 pub mod power;
+pub mod realism;
 pub mod scene;
 pub mod stereo_camera;
 pub mod tractor;

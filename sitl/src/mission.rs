@@ -27,6 +27,7 @@ use sim::autopilot::MavlinkAutopilot;
 use sim::camera::{SimCamera, SimCameraConfig, VehiclePose};
 use sim::outcome::{LocalisationAccumulator, QosChange, SimOutcome, TrackSample};
 use sim::power::{RotorPowerModel, SimBattery, SimPack};
+use sim::realism::Realism;
 use sim::scene::{HazardField, PadPose, SimScene, TrackScatterConfig, TractorBody};
 use sim::stereo_camera::{SimStereoCamera, StereoCameraConfig};
 use sim::tractor::{PathKind, Tractor, TractorParams};
@@ -84,6 +85,8 @@ pub struct SimOptions {
     /// streaming as a real one does (no lockstep), the world stepped at the pace of real time.
     /// Not deterministic; this is how the onboard path is flown end to end in one process.
     pub real_time: bool,
+    /// How far what the runtime sees is from the truth ([`Realism::ideal`]: not at all).
+    pub realism: Realism,
 }
 
 impl Default for SimOptions {
@@ -101,6 +104,7 @@ impl Default for SimOptions {
             record_track: false,
             stereo: StereoCameraConfig::default(),
             real_time: false,
+            realism: Realism::default(),
         }
     }
 }
