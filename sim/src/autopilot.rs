@@ -78,9 +78,6 @@ pub const RANGEFINDER_MAX_CM: u16 = 4_000;
 
 /// Stream periods (PX4 onboard-link rates).
 const HEARTBEAT_PERIOD_S: f64 = 1.0;
-const ATTITUDE_PERIOD_S: f64 = 1.0 / 50.0;
-const POSITION_PERIOD_S: f64 = 1.0 / 50.0;
-const DISTANCE_PERIOD_S: f64 = 1.0 / 20.0;
 const BATTERY_PERIOD_S: f64 = 1.0 / 2.0;
 const EXTENDED_STATE_PERIOD_S: f64 = 1.0 / 5.0;
 /// Float slack for "is this stream due" on a fixed-step clock.
@@ -160,6 +157,26 @@ pub struct MavlinkAutopilot {
     stats: AutopilotStats,
     buffer: Vec<u8>,
     encode_buffer: Vec<u8>,
+    rates: StreamRates,
+}
+
+/// How often the fast streams go out.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StreamRates {
+    pub attitude_hz: f64,
+    pub position_hz: f64,
+    pub distance_hz: f64,
+}
+
+impl Default for StreamRates {
+    /// 50 Hz attitude and position, 20 Hz distance: one message a 50 Hz tick.
+    fn default() -> Self {
+        Self {
+            attitude_hz: 50.0,
+            position_hz: 50.0,
+            distance_hz: 20.0,
+        }
+    }
 }
 
 impl MavlinkAutopilot {
@@ -179,7 +196,27 @@ impl MavlinkAutopilot {
             stats: AutopilotStats::default(),
             buffer: vec![0; 65_536],
             encode_buffer: Vec::with_capacity(300),
+            rates: StreamRates::default(),
         })
+    }
+
+    /// Streams ATTITUDE, LOCAL_POSITION_NED and DISTANCE_SENSOR at these rates (each at most
+    /// once a `publish`); rates that are not finite and positive keep the defaults.
+    pub fn with_stream_rates(mut self, rates: StreamRates) -> Self {
+        let defaults = StreamRates::default();
+        let pick = |hz: f64, default: f64| {
+            if hz.is_finite() && hz > 0.0 {
+                hz
+            } else {
+                default
+            }
+        };
+        self.rates = StreamRates {
+            attitude_hz: pick(rates.attitude_hz, defaults.attitude_hz),
+            position_hz: pick(rates.position_hz, defaults.position_hz),
+            distance_hz: pick(rates.distance_hz, defaults.distance_hz),
+        };
+        self
     }
 
     /// The autopilot's own UDP address.
@@ -227,13 +264,13 @@ impl MavlinkAutopilot {
         if take_due(&mut due.heartbeat_s, time_s, HEARTBEAT_PERIOD_S) {
             self.send(&heartbeat(snapshot))?;
         }
-        if take_due(&mut due.attitude_s, time_s, ATTITUDE_PERIOD_S) {
+        if take_due(&mut due.attitude_s, time_s, 1.0 / self.rates.attitude_hz) {
             self.send(&attitude(snapshot, time_boot_ms))?;
         }
-        if take_due(&mut due.position_s, time_s, POSITION_PERIOD_S) {
+        if take_due(&mut due.position_s, time_s, 1.0 / self.rates.position_hz) {
             self.send(&local_position(snapshot, time_boot_ms))?;
         }
-        if take_due(&mut due.distance_s, time_s, DISTANCE_PERIOD_S) {
+        if take_due(&mut due.distance_s, time_s, 1.0 / self.rates.distance_hz) {
             self.send(&distance_sensor(snapshot, time_boot_ms))?;
         }
         if take_due(&mut due.battery_s, time_s, BATTERY_PERIOD_S) {

@@ -4,6 +4,7 @@
 
 pub mod autopilot;
 pub mod camera;
+pub mod estimate;
 pub mod flight;
 pub mod hazard_dataset;
 pub mod outcome;

@@ -6,7 +6,7 @@
 //! autopilot hands out the truth, frames arrive at once).
 
 /// Every effect, realistic by default.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Realism {
     pub estimator: EstimatorErrors,
     pub telemetry: TelemetryTiming,
@@ -14,19 +14,6 @@ pub struct Realism {
     pub pad: PadMotion,
     pub rangefinder: RangefinderErrors,
     pub driver: DriverBehaviour,
-}
-
-impl Default for Realism {
-    fn default() -> Self {
-        Self {
-            estimator: EstimatorErrors::default(),
-            telemetry: TelemetryTiming::default(),
-            camera: CameraRealism::default(),
-            pad: PadMotion::default(),
-            rangefinder: RangefinderErrors::default(),
-            driver: DriverBehaviour::default(),
-        }
-    }
 }
 
 impl Realism {
@@ -109,7 +96,9 @@ impl Realism {
 
 /// A parameter out of its range.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
-#[error("realism parameter {name} = {value} must be finite, not negative, and a probability at most 1")]
+#[error(
+    "realism parameter {name} = {value} must be finite, not negative, and a probability at most 1"
+)]
 pub struct RealismError {
     pub name: &'static str,
     pub value: f64,

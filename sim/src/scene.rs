@@ -475,6 +475,20 @@ pub struct SimScene {
     tractor_body: Option<TractorBody>,
     hazards: Vec<Hazard>,
     hazard_patches: Vec<Patch>,
+    occluders: Vec<PadOccluder>,
+}
+
+/// Something lying on the pad over part of the marker (a clod of mud, straw, a dark shadow's
+/// edge): a square in the pad's frame, drawn over the marker.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PadOccluder {
+    /// Centre, metres forward and right of the pad's centre.
+    pub forward_m: f64,
+    pub right_m: f64,
+    pub yaw_rad: f64,
+    pub size_m: f64,
+    /// Grey level, 0 black to 1 white.
+    pub intensity: f32,
 }
 
 impl SimScene {
@@ -493,7 +507,14 @@ impl SimScene {
             tractor_body: None,
             hazards: Vec::new(),
             hazard_patches: Vec::new(),
+            occluders: Vec::new(),
         }
+    }
+
+    /// Things lying on the pad, drawn over the marker wherever the pad goes.
+    pub fn with_pad_occluders(mut self, occluders: Vec<PadOccluder>) -> Self {
+        self.occluders = occluders;
+        self
     }
 
     /// A different background texture (tests use uniform ones).
@@ -624,6 +645,21 @@ impl SimScene {
                     down_m,
                     pad.yaw_rad,
                 )?);
+                let (sin, cos) = pad.yaw_rad.sin_cos();
+                for occluder in &self.occluders {
+                    let north_m = pad.north_m + cos * occluder.forward_m - sin * occluder.right_m;
+                    let east_m = pad.east_m + sin * occluder.forward_m + cos * occluder.right_m;
+                    scene.patches.push(
+                        Patch::square(
+                            north_m,
+                            east_m,
+                            pad.yaw_rad + occluder.yaw_rad,
+                            occluder.size_m,
+                            Texture::uniform(occluder.intensity),
+                        )
+                        .at_down_m(down_m),
+                    );
+                }
             }
         }
         Ok(scene)

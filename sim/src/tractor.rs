@@ -9,8 +9,11 @@ use std::f64::consts::{FRAC_PI_2, PI, TAU};
 use std::fmt;
 use std::str::FromStr;
 
+use algorithms::vision::render::SplitMix64;
 use nalgebra::{Rotation2, Vector2, Vector3};
 use thiserror::Error;
+
+use crate::realism::{DriverBehaviour, GaussMarkov, PadMotion};
 
 /// Polyline spacing: dense against the lookahead so the pursuit point moves smoothly.
 const PATH_SPACING_M: f64 = 0.25;
@@ -481,6 +484,48 @@ pub struct Tractor {
     /// Arc length of the closest path point, unrolled over laps.
     progress_m: f64,
     distance_driven_m: f64,
+    /// A person at the wheel; `None`: the path at cruise speed exactly.
+    driver: Option<Driver>,
+    /// The field's roughness rocks the pad; `None`: a pad that stays level.
+    rough_field: Option<RoughField>,
+}
+
+/// The driver's state: how far off the cruise speed and off the path they are now.
+#[derive(Debug, Clone, PartialEq)]
+struct Driver {
+    rng: SplitMix64,
+    speed_fraction: GaussMarkov,
+    wander_m: GaussMarkov,
+}
+
+/// The pad's rocking as a function of the distance driven (bumps are where they are on the
+/// field, so a stopped tractor stands still): two incommensurate waves per axis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct RoughField {
+    motion: PadMotion,
+    /// Wavelengths (m) and phases (rad) of roll, pitch and heave.
+    waves: [[(f64, f64); 2]; 3],
+}
+
+impl RoughField {
+    /// Roll, pitch and heave (rad, rad, m) after `distance_m`, and their rates per metre.
+    fn at(&self, distance_m: f64) -> ([f64; 3], [f64; 3]) {
+        let mut value = [0.0; 3];
+        let mut per_m = [0.0; 3];
+        let amplitude = [
+            self.motion.tilt_rad,
+            self.motion.tilt_rad,
+            self.motion.heave_m,
+        ];
+        for axis in 0..3 {
+            for (weight, (wavelength_m, phase)) in [0.6, 0.4].into_iter().zip(self.waves[axis]) {
+                let k = TAU / wavelength_m;
+                value[axis] += amplitude[axis] * weight * (k * distance_m + phase).sin();
+                per_m[axis] += amplitude[axis] * weight * k * (k * distance_m + phase).cos();
+            }
+        }
+        (value, per_m)
+    }
 }
 
 impl Tractor {
@@ -517,7 +562,47 @@ impl Tractor {
             yaw_rate_rad_s: 0.0,
             progress_m: 0.0,
             distance_driven_m: 0.0,
+            driver: None,
+            rough_field: None,
         })
+    }
+
+    /// A person drives: the speed wanders around the cruise speed and the line around the path
+    /// as [`DriverBehaviour`] says, reproducibly for `seed`.
+    pub fn with_driver(mut self, behaviour: DriverBehaviour, seed: u64) -> Self {
+        let mut rng = SplitMix64::new(seed ^ 0x6472_6976_6572);
+        let speed_fraction = GaussMarkov::new(
+            behaviour.speed_variation,
+            behaviour.speed_tau_s,
+            rng.next_gaussian(),
+        );
+        let wander_m = GaussMarkov::new(
+            behaviour.wander_m,
+            behaviour.wander_tau_s,
+            rng.next_gaussian(),
+        );
+        self.driver = Some(Driver {
+            rng,
+            speed_fraction,
+            wander_m,
+        });
+        self
+    }
+
+    /// The field rocks the pad as [`PadMotion`] says, reproducibly for `seed`.
+    pub fn with_rough_field(mut self, motion: PadMotion, seed: u64) -> Self {
+        let mut rng = SplitMix64::new(seed ^ 0x6669_656c_64);
+        // One period's travel at cruise speed is the main wavelength; the second wave is
+        // 0.6–1.6 of it, so the rocking never repeats exactly.
+        let main_m = (motion.tilt_period_s * self.params.speed_m_s).max(0.5);
+        let mut waves = [[(1.0, 0.0); 2]; 3];
+        for axis in &mut waves {
+            axis[0] = (main_m, TAU * rng.next_f64());
+            let ratio = 0.6 + rng.next_f64();
+            axis[1] = (main_m * ratio, TAU * rng.next_f64());
+        }
+        self.rough_field = Some(RoughField { motion, waves });
+        self
     }
 
     pub fn kind(&self) -> PathKind {
@@ -559,9 +644,21 @@ impl Tractor {
         self.progress_m = self.path.project(
             self.position_ne_m,
             self.progress_m - 1.0,
-            self.progress_m + lookahead + 2.0 * p.speed_m_s * dt_s + 1.0,
+            self.progress_m + lookahead + 2.0 * self.speed_m_s.max(p.speed_m_s) * dt_s + 1.0,
         );
-        let target = self.path.point_at(self.progress_m + lookahead);
+        let mut target = self.path.point_at(self.progress_m + lookahead);
+        let mut cruise_m_s = p.speed_m_s;
+        if let Some(driver) = &mut self.driver {
+            let fraction = driver.speed_fraction.step(dt_s, driver.rng.next_gaussian());
+            // A driver eases off or picks up, but keeps driving.
+            cruise_m_s *= 1.0 + fraction.clamp(-0.6, 0.6);
+            let wander_m = driver.wander_m.step(dt_s, driver.rng.next_gaussian());
+            // Aim off the path to the side by the wander: the line drifts, the path stays.
+            let ahead = self.path.point_at(self.progress_m + lookahead + 0.5) - target;
+            if let Some(along) = ahead.try_normalize(1e-9) {
+                target += Vector2::new(-along.y, along.x) * wander_m;
+            }
+        }
         let to_target = target - self.position_ne_m;
         let distance = to_target.norm().max(1e-6);
         let alpha = wrap_angle(to_target.y.atan2(to_target.x) - self.heading_rad);
@@ -572,7 +669,7 @@ impl Tractor {
         } else {
             f64::INFINITY
         };
-        let wanted_speed = p.speed_m_s.min(cornering_speed);
+        let wanted_speed = cruise_m_s.min(cornering_speed);
         let max_change = p.max_accel_m_s2 * dt_s;
         let speed = self.speed_m_s + (wanted_speed - self.speed_m_s).clamp(-max_change, max_change);
         let yaw_rate =
@@ -599,270 +696,46 @@ impl Tractor {
         }
     }
 
+    /// The pad's top. On a rough field the roof rolls and pitches about the axles: the pad's
+    /// centre sways by the roof's height times the tilt and heaves; the pad itself is drawn
+    /// level (2° of tilt foreshortens the marker by 0.06 %, the sway moves it centimetres).
     pub fn pad(&self) -> PadState {
         let pose = self.pose();
+        let mut centre_ned_m = Vector3::new(
+            pose.position_ne_m.x,
+            pose.position_ne_m.y,
+            -self.params.pad_height_m,
+        );
+        let mut velocity_ned_m_s =
+            Vector3::new(pose.velocity_ne_m_s.x, pose.velocity_ne_m_s.y, 0.0);
+        if let Some(field) = &self.rough_field {
+            let ([roll, pitch, heave], [roll_per_m, pitch_per_m, heave_per_m]) =
+                field.at(self.distance_driven_m);
+            let height_m = self.params.pad_height_m;
+            // Pitching nose-down moves the roof forward; rolling right moves it right.
+            let sway_pad_m = Vector2::new(height_m * pitch.sin(), height_m * roll.sin());
+            let sway_rate_pad_m_s = Vector2::new(
+                height_m * pitch.cos() * pitch_per_m,
+                height_m * roll.cos() * roll_per_m,
+            ) * pose.speed_m_s;
+            let rotation = Rotation2::new(pose.heading_rad);
+            let sway_ne_m = rotation * sway_pad_m;
+            let sway_rate_ne_m_s = rotation * sway_rate_pad_m_s;
+            centre_ned_m += Vector3::new(sway_ne_m.x, sway_ne_m.y, -heave);
+            velocity_ned_m_s += Vector3::new(
+                sway_rate_ne_m_s.x,
+                sway_rate_ne_m_s.y,
+                -heave_per_m * pose.speed_m_s,
+            );
+        }
         PadState {
-            centre_ned_m: Vector3::new(
-                pose.position_ne_m.x,
-                pose.position_ne_m.y,
-                -self.params.pad_height_m,
-            ),
+            centre_ned_m,
             yaw_rad: pose.heading_rad,
-            velocity_ned_m_s: Vector3::new(pose.velocity_ne_m_s.x, pose.velocity_ne_m_s.y, 0.0),
+            velocity_ned_m_s,
             half_size_m: 0.5 * self.params.pad_size_m,
         }
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    const DT: f64 = 0.01;
-
-    fn tractor(kind: PathKind) -> Tractor {
-        Tractor::new(kind, TractorParams::default(), [0.0, 0.0], 0.0).unwrap()
-    }
-
-    fn drive(t: &mut Tractor, seconds: f64) -> Vec<TractorPose> {
-        let steps = (seconds / DT).round() as usize;
-        (0..steps)
-            .map(|_| {
-                t.step(DT).unwrap();
-                t.pose()
-            })
-            .collect()
-    }
-
-    #[test]
-    fn the_rectangle_turns_where_first_turn_m_says() {
-        // At its default speed the heading stays north until the first corner, then turns east.
-        let mut t = tractor(PathKind::Rectangle);
-        let corner_m = PathKind::Rectangle.first_turn_m().unwrap();
-        let mut heading_at = Vec::new();
-        for step in 0..(30.0 / 0.01) as usize {
-            t.step(0.01).unwrap();
-            heading_at.push((
-                step as f64 * 0.01,
-                t.pose().heading_rad,
-                t.distance_driven_m(),
-            ));
-        }
-        // Pure pursuit cuts the corner, starting its turn a few metres early.
-        let before = heading_at.iter().filter(|(_, _, d)| *d < corner_m - 6.0);
-        assert!(before.clone().count() > 100);
-        let worst = before.clone().map(|(_, h, _)| h.abs()).fold(0.0, f64::max);
-        assert!(worst < 0.05, "{worst}");
-        let after = heading_at
-            .iter()
-            .find(|(_, _, d)| *d > corner_m + 8.0)
-            .unwrap();
-        assert!(
-            (after.1 - std::f64::consts::FRAC_PI_2).abs() < 0.1,
-            "{after:?}"
-        );
-        assert_eq!(PathKind::Straight.first_turn_m(), None);
-        assert_eq!(PathKind::Circle.first_turn_m(), Some(0.0));
-    }
-
-    #[test]
-    fn limits_hold_on_every_path() {
-        let p = TractorParams::default();
-        for kind in PathKind::ALL {
-            let mut t = tractor(kind);
-            let mut previous = t.pose();
-            for pose in drive(&mut t, 300.0) {
-                assert!(pose.speed_m_s <= p.speed_m_s + 1e-12, "{kind}");
-                assert!(pose.yaw_rate_rad_s.abs() <= p.max_turn_rate_rad_s + 1e-12);
-                // Heading change and position change measured independently of the state's
-                // own rate fields.
-                let turned = wrap_angle(pose.heading_rad - previous.heading_rad).abs();
-                assert!(turned <= p.max_turn_rate_rad_s * DT + 1e-9, "{kind}");
-                let moved = (pose.position_ne_m - previous.position_ne_m).norm();
-                assert!(moved <= p.speed_m_s * DT + 1e-9, "{kind}");
-                let accel = (pose.speed_m_s - previous.speed_m_s).abs() / DT;
-                assert!(accel <= p.max_accel_m_s2 + 1e-9, "{kind}");
-                previous = pose;
-            }
-            // It keeps moving for the whole five minutes.
-            assert!(t.distance_driven_m() > 0.8 * 300.0 * p.speed_m_s, "{kind}");
-        }
-    }
-
-    #[test]
-    fn closed_paths_come_back_to_the_start_after_a_lap() {
-        for kind in [PathKind::Rectangle, PathKind::Circle, PathKind::FigureEight] {
-            let mut t = tractor(kind);
-            let lap = t.lap_length_m().unwrap();
-            let lap_time = lap / t.params().speed_m_s;
-            let poses = drive(&mut t, 1.4 * lap_time);
-            // Far from the start a quarter of the way round (the figure-eight passes its start
-            // again half way), then back near it around one lap.
-            let quarter = &poses[(0.25 * lap_time / DT) as usize];
-            assert!(quarter.position_ne_m.norm() > 10.0, "{kind}");
-            let closest = poses[(0.8 * lap_time / DT) as usize..]
-                .iter()
-                .map(|p| p.position_ne_m.norm())
-                .fold(f64::INFINITY, f64::min);
-            assert!(closest < 1.0, "{kind}: closest {closest}");
-            // The second lap starts: it follows the path again rather than stopping.
-            assert!(t.pose().speed_m_s > 1.0);
-        }
-    }
-
-    #[test]
-    fn turns_change_heading_by_their_angle() {
-        for (kind, expected) in [(PathKind::Turn90, FRAC_PI_2), (PathKind::Turn180, PI)] {
-            let mut t = tractor(kind);
-            let poses = drive(&mut t, 90.0);
-            let end = poses.last().unwrap();
-            let change = wrap_angle(end.heading_rad - 0.0).abs();
-            assert!(
-                (change - expected).abs() < 5f64.to_radians(),
-                "{kind}: {}°",
-                change.to_degrees()
-            );
-            // It went straight first: 15 s in, still heading north on the east = 0 line.
-            let early = &poses[(15.0 / DT) as usize];
-            assert!(early.heading_rad.abs() < 1e-6 && early.position_ne_m.y.abs() < 1e-6);
-            // And the turn was driven, not jumped: the heading passed through the middle.
-            assert!(poses
-                .iter()
-                .any(|p| (p.heading_rad.abs() - expected / 2.0).abs() < 0.05));
-        }
-    }
-
-    fn segments_cross(a: Vector2<f64>, b: Vector2<f64>, c: Vector2<f64>, d: Vector2<f64>) -> bool {
-        let cross = |o: Vector2<f64>, p: Vector2<f64>, q: Vector2<f64>| {
-            (p - o).x * (q - o).y - (p - o).y * (q - o).x
-        };
-        let (d1, d2) = (cross(c, d, a), cross(c, d, b));
-        let (d3, d4) = (cross(a, b, c), cross(a, b, d));
-        d1 * d2 < 0.0 && d3 * d4 < 0.0
-    }
-
-    #[test]
-    fn figure_eight_crosses_itself() {
-        let mut t = tractor(PathKind::FigureEight);
-        let lap_time = t.lap_length_m().unwrap() / t.params().speed_m_s;
-        // The crossing is at the start point, passed half way round and again after a lap; skip
-        // the very start so the crossing lies inside segments rather than at an end.
-        let track: Vec<_> = drive(&mut t, 1.2 * lap_time)
-            .iter()
-            .skip(100)
-            .step_by(50)
-            .map(|p| p.position_ne_m)
-            .collect();
-        let mut crossings = 0;
-        for i in 0..track.len() - 1 {
-            for j in i + 2..track.len() - 1 {
-                if segments_cross(track[i], track[i + 1], track[j], track[j + 1]) {
-                    crossings += 1;
-                }
-            }
-        }
-        assert!(crossings >= 1, "{crossings}");
-        // A circle does not.
-        let mut c = tractor(PathKind::Circle);
-        let lap_time = c.lap_length_m().unwrap() / c.params().speed_m_s;
-        let track: Vec<_> = drive(&mut c, 0.95 * lap_time)
-            .iter()
-            .step_by(50)
-            .map(|p| p.position_ne_m)
-            .collect();
-        for i in 0..track.len() - 1 {
-            for j in i + 2..track.len() - 1 {
-                assert!(!segments_cross(
-                    track[i],
-                    track[i + 1],
-                    track[j],
-                    track[j + 1]
-                ));
-            }
-        }
-    }
-
-    #[test]
-    fn straight_keeps_going_and_start_pose_is_honoured() {
-        let mut t = Tractor::new(
-            PathKind::Straight,
-            TractorParams::default(),
-            [10.0, -5.0],
-            FRAC_PI_2,
-        )
-        .unwrap();
-        drive(&mut t, 200.0);
-        let pose = t.pose();
-        // 200 s at 1.5 m/s due east from (10, −5), far past the 100 m polyline.
-        assert!((pose.position_ne_m - Vector2::new(10.0, 295.0)).norm() < 1e-6);
-        let pad = t.pad();
-        assert_eq!(pad.centre_ned_m.z, -1.0);
-        assert!((pad.velocity_ned_m_s - Vector3::new(0.0, 1.5, 0.0)).norm() < 1e-9);
-        assert!(pad.contains_ne(Vector2::new(10.4, 295.4)));
-        assert!(!pad.contains_ne(Vector2::new(10.6, 295.0)));
-    }
-
-    #[test]
-    fn names_parse_and_print() {
-        for kind in PathKind::ALL {
-            assert_eq!(kind.to_string().parse::<PathKind>().unwrap(), kind);
-        }
-        let err = "zigzag".parse::<PathKind>().unwrap_err();
-        assert_eq!(err.given, "zigzag");
-        let message = err.to_string();
-        for kind in PathKind::ALL {
-            assert!(message.contains(kind.name()), "{message}");
-        }
-        assert!("Circle".parse::<PathKind>().is_err());
-    }
-
-    #[test]
-    fn bad_parameters_are_refused() {
-        let bad = TractorParams {
-            max_turn_rate_rad_s: 0.0,
-            ..TractorParams::default()
-        };
-        assert!(matches!(
-            Tractor::new(PathKind::Circle, bad, [0.0, 0.0], 0.0),
-            Err(TractorError::NotPositive {
-                name: "max_turn_rate_rad_s",
-                ..
-            })
-        ));
-        let bad = TractorParams {
-            speed_m_s: f64::NAN,
-            ..TractorParams::default()
-        };
-        assert!(bad.validate().is_err());
-        assert!(Tractor::new(
-            PathKind::Circle,
-            TractorParams::default(),
-            [f64::INFINITY, 0.0],
-            0.0
-        )
-        .is_err());
-        let mut t = tractor(PathKind::Circle);
-        assert!(t.step(-1.0).is_err());
-        assert!(t.step(f64::NAN).is_err());
-    }
-
-    #[test]
-    fn a_parked_tractor_pulls_away_within_its_acceleration_limit() {
-        let params = TractorParams::default();
-        let mut tractor = Tractor::new(PathKind::Straight, params, [0.0, 0.0], 0.0)
-            .unwrap()
-            .parked();
-        assert_eq!(tractor.pose().speed_m_s, 0.0);
-        let dt_s = 0.01;
-        for _ in 0..100 {
-            tractor.step(dt_s).unwrap();
-        }
-        // 1 s at 0.5 m/s²: 0.5 m/s and 0.25 m driven.
-        assert!((tractor.pose().speed_m_s - 0.5).abs() < 1e-9);
-        assert!((tractor.distance_driven_m() - 0.25).abs() < 0.01);
-        for _ in 0..1000 {
-            tractor.step(dt_s).unwrap();
-        }
-        assert!((tractor.pose().speed_m_s - params.speed_m_s).abs() < 1e-9);
-    }
-}
+mod tests;

@@ -11,6 +11,7 @@
 //! seed fly the same mission.
 
 use crate::hazard_score::HazardScore;
+use algorithms::vision::render::SplitMix64;
 use nalgebra::Vector3;
 use runtime::camera::{CapturedFrame, MemorySource};
 use runtime::clock::Timestamp;
@@ -24,10 +25,13 @@ use runtime::topics::{
     CameraFrame, DepthFrame, HazardReport, RelativeState, DEPTH_FRAME, HAZARDS, RELATIVE_STATE,
 };
 use sim::autopilot::MavlinkAutopilot;
+use sim::autopilot::StreamRates;
 use sim::camera::{SimCamera, SimCameraConfig, VehiclePose};
+use sim::estimate::EstimatedTelemetry;
 use sim::outcome::{LocalisationAccumulator, QosChange, SimOutcome, TrackSample};
 use sim::power::{RotorPowerModel, SimBattery, SimPack};
-use sim::realism::Realism;
+use sim::realism::{CameraRealism, DriverBehaviour, PadMotion, Realism};
+use sim::scene::PadOccluder;
 use sim::scene::{HazardField, PadPose, SimScene, TrackScatterConfig, TractorBody};
 use sim::stereo_camera::{SimStereoCamera, StereoCameraConfig};
 use sim::tractor::{PathKind, Tractor, TractorParams};
@@ -183,9 +187,17 @@ pub fn simulate(
         speed_m_s: options.platform_speed_m_s,
         ..TractorParams::default()
     };
+    let realism = &options.realism;
+    realism.validate().map_err(|e| setup(&e))?;
     let mut tractor = Tractor::new(options.path, tractor_params, meeting, 0.0)
         .map_err(|e| setup(&e))?
         .parked();
+    if realism.driver != DriverBehaviour::SCRIPTED {
+        tractor = tractor.with_driver(realism.driver, options.seed);
+    }
+    if realism.pad != PadMotion::STILL {
+        tractor = tractor.with_rough_field(realism.pad, options.seed);
+    }
     let mut vehicle =
         Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(|e| setup(&e))?;
     let mut wind = Wind::new(
@@ -193,8 +205,16 @@ pub fn simulate(
         options.seed ^ 0x5749_4e44,
     )
     .map_err(|e| setup(&e))?;
-    let camera_config = camera_config(model);
+    let camera_config = SimCameraConfig {
+        exposure_ms: realism.camera.exposure_ms,
+        ..camera_config(model)
+    };
     let camera_period_s = 1.0 / camera_config.rate_fps;
+    // Frames reach the runtime after their capture-to-delivery latency, stamped with their
+    // capture time, in order.
+    let mut in_transit: std::collections::VecDeque<(f64, CapturedFrame)> =
+        std::collections::VecDeque::new();
+    let mut latency_rng = SplitMix64::new(options.seed ^ 0x6c61_7465_6e63_79);
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
     // The hazards stand beside the track the tractor will drive while the CNN watches.
     let watch_s: f64 = model.config.mission.phases[1..model.config.mission.phases.len() - 1]
@@ -208,7 +228,8 @@ pub fn simulate(
     let mut scene = SimScene::new(options.seed)
         .with_tractor_body(TractorBody::default())
         .map_err(|e| setup(&e))?
-        .with_hazards(hazards);
+        .with_hazards(hazards)
+        .with_pad_occluders(pad_occluders(&realism.camera, options.seed));
     // The world's pack has the config's capacity, cells and resistance.
     let spec = model.battery_spec(None).map_err(|e| setup(&e))?;
     let pack = SimPack::new(
@@ -230,8 +251,20 @@ pub fn simulate(
     let runtime_addr = link
         .local_addr()
         .ok_or_else(|| SimError::Link("the link has no local UDP address".into()))?;
+    let telemetry = &realism.telemetry;
     let mut autopilot = MavlinkAutopilot::bind_local(runtime_addr, !options.real_time)
-        .map_err(|e| link_error(&e))?;
+        .map_err(|e| link_error(&e))?
+        .with_stream_rates(StreamRates {
+            attitude_hz: telemetry.attitude_rate_hz,
+            position_hz: telemetry.position_rate_hz,
+            distance_hz: telemetry.distance_rate_hz,
+        });
+    let mut estimate = EstimatedTelemetry::new(
+        realism.estimator,
+        realism.rangefinder,
+        telemetry.latency_s,
+        options.seed,
+    );
 
     let plan = mission_plan(model, meeting, pad_height_m);
     let max_time_s = options.max_time_s.unwrap_or_else(|| {
@@ -343,7 +376,10 @@ pub fn simulate(
                     runner
                         .scheduler()
                         .next_activation(name)
-                        .is_some_and(|next| next.as_secs_f64() < time_s + camera_period_s)
+                        .is_some_and(|next| {
+                            next.as_secs_f64()
+                                < time_s + camera_period_s + realism.camera.latency_max_s
+                        })
                 });
             if wanted {
                 scene
@@ -358,13 +394,23 @@ pub fn simulate(
                 match camera.capture_frame(time_s, &pose, &scene) {
                     Ok(frame) => {
                         let frame_index = frame.frame_index;
-                        frames.push(CapturedFrame {
-                            frame: CameraFrame {
-                                frame_index,
-                                image: frame.image,
+                        let c = &realism.camera;
+                        let latency_s = c.latency_min_s
+                            + (c.latency_max_s - c.latency_min_s) * latency_rng.next_f64();
+                        // Not before the frame ahead of it: a camera delivers in order.
+                        let deliver_s = in_transit
+                            .back()
+                            .map_or(time_s + latency_s, |(s, _)| s.max(time_s + latency_s));
+                        in_transit.push_back((
+                            deliver_s,
+                            CapturedFrame {
+                                frame: CameraFrame {
+                                    frame_index,
+                                    image: frame.image,
+                                },
+                                capture_time_s: runtime_now_s,
                             },
-                            capture_time_s: runtime_now_s,
-                        });
+                        ));
                         if let Some((stereo, depth_frames)) = stereo.as_mut() {
                             match stereo.capture(
                                 frame_index,
@@ -392,8 +438,17 @@ pub fn simulate(
             }
         }
 
+        while in_transit
+            .front()
+            .is_some_and(|(deliver_s, _)| *deliver_s <= time_s + 1e-9)
+        {
+            if let Some((_, frame)) = in_transit.pop_front() {
+                frames.push(frame);
+            }
+        }
+
         // Autopilot → runtime → autopilot: in lockstep, or as the datagrams come.
-        let snapshot = vehicle.snapshot(time_s, battery.reading());
+        let snapshot = estimate.report(&vehicle.snapshot(time_s, battery.reading()));
         let t_ns = autopilot.publish(&snapshot).map_err(|e| link_error(&e))?;
         let lockstep = (!options.real_time).then_some(t_ns);
         let step = runner
@@ -721,4 +776,25 @@ pub(crate) fn pad_pose(tractor: &Tractor) -> PadPose {
         height_m: -pad.centre_ned_m.z,
         yaw_rad: pad.yaw_rad,
     }
+}
+
+/// What lies on the pad for this seed: with probability `occluded_fraction` one square of
+/// `occluder_size_m` somewhere over the marker, dark (mud, a shadow's edge) or light (straw).
+fn pad_occluders(camera: &CameraRealism, seed: u64) -> Vec<PadOccluder> {
+    let mut rng = SplitMix64::new(seed ^ 0x6f63_636c_7564_6572);
+    if camera.occluder_size_m <= 0.0 || rng.next_f64() >= camera.occluded_fraction {
+        return Vec::new();
+    }
+    let mut within = |half_m: f64| half_m * (2.0 * rng.next_f64() - 1.0);
+    let forward_m = within(0.35);
+    let right_m = within(0.35);
+    let yaw_rad = within(std::f64::consts::FRAC_PI_4);
+    let intensity = if rng.next_f64() < 0.5 { 0.2 } else { 0.85 };
+    vec![PadOccluder {
+        forward_m,
+        right_m,
+        yaw_rad,
+        size_m: camera.occluder_size_m,
+        intensity,
+    }]
 }

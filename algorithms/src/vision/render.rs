@@ -773,7 +773,7 @@ fn motion_blur(pixels: &[f32], width: usize, height: usize, blur: MotionBlur) ->
 }
 
 /// SplitMix64: a small, seedable generator, so the crate needs no random-number dependency.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct SplitMix64 {
     state: u64,
     spare_gaussian: Option<f64>,
