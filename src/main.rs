@@ -2,6 +2,7 @@
 
 mod check;
 mod detect;
+mod evaluate;
 mod fly;
 mod frames;
 mod model;

@@ -8,6 +8,7 @@ use runtime::energy::{load_mission_model, MissionModel};
 use runtime::plugins::builtin_registry;
 use runtime::registry::PluginRegistry;
 use sim::outcome::{SimOutcome, SimSummary};
+use sim::realism::Realism;
 use sim::tractor::PathKind;
 use sitl::mission::{simulate, Faults, SimOptions, WindKind};
 use std::path::{Path, PathBuf};
@@ -34,9 +35,14 @@ pub struct SimArgs {
     /// Random seed (wind, camera noise, hazards); the same seed flies the same mission.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Fly this many seeds (seed, seed + 1, ...) and print a summary.
-    #[arg(long, default_value_t = 1)]
-    pub runs: usize,
+    /// Fly this many seeds (seed, seed + 1, ...) and print a summary; with an evaluation, seeds
+    /// per cell (default: 20 for --evaluate, 1 for the others).
+    #[arg(long, value_name = "N")]
+    pub runs: Option<usize>,
+    /// Fly the ideal world (the autopilot hands out the truth, frames arrive at once, a still
+    /// pad) instead of the realistic one.
+    #[arg(long, conflicts_with = "serve")]
+    pub ideal: bool,
     /// Override the tracking phase's duration (s), e.g. to evaluate landings.
     #[arg(long, value_name = "S")]
     pub tracking_s: Option<f64>,
@@ -49,11 +55,49 @@ pub struct SimArgs {
     /// Draw the vehicle's and the tractor's tracks and the battery over time as SVG.
     #[arg(long, value_name = "PATH")]
     pub svg: Option<PathBuf>,
-    /// Evaluate landings: every landing-marker rate × wind {0, 8, 12} m/s × path {straight,
-    /// figure8, turn180}, --runs seeds per cell (tracking shortened to 15 s unless
-    /// --tracking-s says otherwise), as a table.
-    #[arg(long)]
+    /// Evaluate landings: world {realistic, ideal} × landing-marker rate × wind {0, 8 and 12 m/s
+    /// gusts, 12 m/s Dryden} × path {straight, figure8, turn180} with the tractor at 1.5 m/s, and
+    /// per world and rate the tractor at 3 m/s on turn180 in 8 m/s gusts; --runs seeds per cell
+    /// (default 20; tracking 15 s unless --tracking-s says otherwise), as a table.
+    #[arg(long, conflicts_with_all = ["path", "wind_m_s", "dryden", "platform_speed_m_s", "svg"])]
     pub evaluate: bool,
+    /// The evaluation's worlds: realistic, ideal (default both; --ideal: ideal only).
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        requires = "evaluate",
+        conflicts_with = "ideal"
+    )]
+    pub worlds: Vec<crate::evaluate::World>,
+    /// The evaluation's landing-marker rates, among the config's levels (default all).
+    #[arg(
+        long,
+        value_name = "FPS,…",
+        value_delimiter = ',',
+        requires = "evaluate"
+    )]
+    pub rates: Vec<f64>,
+    /// The evaluation's winds: 0, 8, 12 (m/s, gusts), dryden12 (default all).
+    #[arg(long, value_name = "WIND,…", value_delimiter = ',', value_parser = crate::evaluate::parse_wind, requires = "evaluate")]
+    pub winds: Vec<crate::evaluate::GridWind>,
+    /// The evaluation's paths: straight, figure8, turn180 (default all).
+    #[arg(long, value_name = "PATH,…", value_delimiter = ',', value_parser = crate::evaluate::parse_grid_path, requires = "evaluate")]
+    pub paths: Vec<PathKind>,
+    /// Fly only shard I of N of the evaluation (the missions k with k mod N = I − 1) and write
+    /// its runs as a shard file (to --out, else stdout) for --merge.
+    #[arg(long, value_name = "I/N", value_parser = crate::evaluate::parse_shard, requires = "evaluate")]
+    pub shard: Option<crate::evaluate::Shard>,
+    /// Write the evaluation's runs as a shard file (the whole evaluation as shard 1/1).
+    #[arg(long, value_name = "PATH", requires = "evaluate")]
+    pub out: Option<PathBuf>,
+    /// Also write the evaluation's table as CSV, one row per cell.
+    #[arg(long, value_name = "PATH", conflicts_with = "shard")]
+    pub csv: Option<PathBuf>,
+    /// Fly nothing: join the shard files of a sweep (`--evaluate --shard I/N --out FILE`) into
+    /// the table the unsharded evaluation prints.
+    #[arg(long, value_name = "SHARD.json", num_args = 1.., conflicts_with_all = ["evaluate", "evaluate_hazards", "evaluate_paths", "serve", "ideal", "runs", "seed", "svg", "tracking_s", "fixed_levels", "path", "wind_m_s", "dryden", "platform_speed_m_s"])]
+    pub merge: Vec<PathBuf>,
     /// Evaluate hazard detection as the seed scored it (a hazard seen = a detection of its class
     /// within 2 m): every hazard-CNN rate × wind {0, 8, 12} m/s on the straight path, --runs
     /// seeds per cell (tracking 200 s, 32 hazards beside the track, unless --tracking-s says
@@ -96,7 +140,7 @@ pub struct SimArgs {
 
 impl SimArgs {
     /// One mission as the arguments describe it, flown with `seed`.
-    fn options(&self, seed: u64) -> SimOptions {
+    pub(crate) fn options(&self, seed: u64) -> SimOptions {
         SimOptions {
             path: self.path,
             wind_speed_m_s: self.wind_m_s,
@@ -111,8 +155,19 @@ impl SimArgs {
             fixed_levels: self.fixed_levels.clone(),
             faults: Faults::default(),
             record_track: self.svg.is_some(),
+            realism: if self.ideal {
+                Realism::ideal()
+            } else {
+                Realism::default()
+            },
             ..SimOptions::default()
         }
+    }
+
+    /// Seeds to fly: of a plain run, or per cell of the hazard and path evaluations (1 unless
+    /// --runs says otherwise; --evaluate has its own default).
+    pub(crate) fn runs(&self) -> usize {
+        self.runs.unwrap_or(1)
     }
 }
 
@@ -134,9 +189,18 @@ pub fn run(args: &SimArgs) -> ExitCode {
         );
         return ExitCode::from(EXIT_INVALID_CONFIG);
     }
-    if args.runs == 0 {
+    if args.runs == Some(0) {
         eprintln!("error: --runs must be at least 1");
         return ExitCode::from(EXIT_INVALID_CONFIG);
+    }
+    if args.csv.is_some() && !args.evaluate && args.merge.is_empty() {
+        eprintln!(
+            "error: --csv writes the landing evaluation's table: use it with --evaluate or --merge"
+        );
+        return ExitCode::from(EXIT_INVALID_CONFIG);
+    }
+    if !args.merge.is_empty() {
+        return crate::evaluate::run_merge(args);
     }
     let Some((model, registry)) = load(&args.file, args.json) else {
         return ExitCode::from(EXIT_INVALID_CONFIG);
@@ -145,7 +209,7 @@ pub fn run(args: &SimArgs) -> ExitCode {
         return crate::serve::run(&model, args);
     }
     if args.evaluate {
-        return evaluate(&model, &registry, args);
+        return crate::evaluate::run(&model, &registry, args);
     }
     if args.evaluate_hazards {
         return evaluate_hazards(&model, &registry, args);
@@ -154,7 +218,8 @@ pub fn run(args: &SimArgs) -> ExitCode {
         return evaluate_paths(&model, &registry, args);
     }
     let options = |seed: u64| args.options(seed);
-    if args.runs == 1 {
+    let runs = args.runs();
+    if runs == 1 {
         let outcome = match simulate(&model, &registry, &options(args.seed)) {
             Ok(outcome) => outcome,
             Err(error) => {
@@ -187,13 +252,13 @@ pub fn run(args: &SimArgs) -> ExitCode {
             ExitCode::from(EXIT_NOT_LANDED)
         };
     }
-    let bar = ProgressBar::new(args.runs as u64);
+    let bar = ProgressBar::new(runs as u64);
     bar.set_style(
         ProgressStyle::with_template("{bar:40} {pos}/{len} runs, {elapsed} elapsed, ETA {eta}")
             .expect("a valid template"),
     );
-    let mut outcomes = Vec::with_capacity(args.runs);
-    for run in 0..args.runs as u64 {
+    let mut outcomes = Vec::with_capacity(runs);
+    for run in 0..runs as u64 {
         match simulate(&model, &registry, &options(args.seed + run)) {
             Ok(outcome) => outcomes.push(outcome),
             Err(error) => {
@@ -322,8 +387,9 @@ pub fn report(outcome: &SimOutcome) -> String {
 
 fn summary_report(summary: &SimSummary, args: &SimArgs) -> String {
     let mut out = format!(
-        "{} runs, path {}, wind {} m/s{}, tractor {} m/s\n",
+        "{} runs, {} world, path {}, wind {} m/s{}, tractor {} m/s\n",
         summary.runs,
+        if args.ideal { "ideal" } else { "realistic" },
         args.path,
         args.wind_m_s,
         if args.dryden { " (Dryden)" } else { "" },
@@ -349,71 +415,7 @@ fn summary_report(summary: &SimSummary, args: &SimArgs) -> String {
     out
 }
 
-/// The landing evaluation the seed only planned: every landing-marker rate × wind × path,
-/// `args.runs` seeds per cell, on all cores.
-fn evaluate(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> ExitCode {
-    let Some(detection) = model
-        .config
-        .tasks
-        .iter()
-        .find(|t| t.plugin == "landing_marker")
-    else {
-        eprintln!("error: --evaluate needs a landing_marker task in the config");
-        return ExitCode::from(EXIT_INVALID_CONFIG);
-    };
-    let mut cells = Vec::new();
-    for &rate in &detection.levels {
-        for wind_m_s in [0.0, 8.0, 12.0] {
-            for path in [PathKind::Straight, PathKind::FigureEight, PathKind::Turn180] {
-                cells.push((rate, wind_m_s, path));
-            }
-        }
-    }
-    let results = fly_cells(
-        model,
-        registry,
-        &cells,
-        args,
-        |&(rate, wind_m_s, path), seed| SimOptions {
-            path,
-            wind_speed_m_s: wind_m_s,
-            tracking_s: Some(args.tracking_s.unwrap_or(EVALUATION_TRACKING_S)),
-            fixed_levels: vec![(detection.name.clone(), rate)],
-            record_track: false,
-            ..args.options(seed)
-        },
-    );
-    let Ok(results) = results else {
-        return ExitCode::FAILURE;
-    };
-    let rows: Vec<(f64, f64, PathKind, SimSummary)> = cells
-        .iter()
-        .zip(&results)
-        .map(|(&(rate, wind, path), outcomes)| (rate, wind, path, SimSummary::of(outcomes)))
-        .collect();
-    if args.json {
-        let rows: Vec<_> = rows
-            .iter()
-            .map(|(rate, wind, path, summary)| {
-                serde_json::json!({
-                    "detection_rate_fps": rate,
-                    "wind_m_s": wind,
-                    "path": path.to_string(),
-                    "summary": summary,
-                })
-            })
-            .collect();
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&rows).expect("summaries serialise")
-        );
-    } else {
-        print!("{}", evaluation_table(&rows, args));
-    }
-    ExitCode::SUCCESS
-}
-
-/// Flies `args.runs` seeds (from `args.seed`) of every cell, with the options `options_of(cell,
+/// Flies `args.runs` seeds (default 1, from `args.seed`) of every cell, with the options `options_of(cell,
 /// seed)`; the outcomes grouped by cell. A mission that cannot be flown is reported, and ends
 /// the evaluation.
 fn fly_cells<C>(
@@ -423,17 +425,20 @@ fn fly_cells<C>(
     args: &SimArgs,
     options_of: impl Fn(&C, u64) -> SimOptions,
 ) -> Result<Vec<Vec<SimOutcome>>, ()> {
-    let mut jobs = Vec::with_capacity(cells.len() * args.runs);
+    let mut jobs = Vec::with_capacity(cells.len() * args.runs());
     for (index, cell) in cells.iter().enumerate() {
-        for run in 0..args.runs as u64 {
+        for run in 0..args.runs() as u64 {
             jobs.push((index, options_of(cell, args.seed + run)));
         }
     }
     fly_all(model, registry, jobs, cells.len()).map_err(|error| eprintln!("error: {error}"))
 }
 
-/// Flies every job on all cores with a progress bar; the outcomes grouped by the job's cell.
-fn fly_all(
+/// Flies every job on all cores with a progress bar (on stderr, hidden when that is no
+/// terminal); the outcomes grouped by the job's cell, each cell's in the order of their seeds
+/// whatever order the workers finished in, so that statistics summed over them come out the same
+/// on every run.
+pub(crate) fn fly_all(
     model: &MissionModel,
     registry: &PluginRegistry,
     jobs: Vec<(usize, SimOptions)>,
@@ -471,7 +476,11 @@ fn fly_all(
     if let Some(error) = failure.into_inner().expect("no worker panics") {
         return Err(error);
     }
-    Ok(results.into_inner().expect("no worker panics"))
+    let mut results = results.into_inner().expect("no worker panics");
+    for outcomes in &mut results {
+        outcomes.sort_by_key(|o| o.seed);
+    }
+    Ok(results)
 }
 
 /// The tracking phase of a hazard evaluation: 300 m of track at 1.5 m/s, room for the seed's 32
@@ -562,7 +571,7 @@ impl HazardRow {
 fn hazard_table(rows: &[HazardRow], args: &SimArgs) -> String {
     let mut out = format!(
         "{} seeds per cell from seed {}, straight path, tractor at {} m/s, {} wind\n\n",
-        args.runs,
+        args.runs(),
         args.seed,
         args.platform_speed_m_s,
         if args.dryden { "Dryden" } else { "gust" }
@@ -592,37 +601,6 @@ fn hazard_table(rows: &[HazardRow], args: &SimArgs) -> String {
     }
     if let Some(backend) = rows.first().map(|r| &r.backend) {
         out += &format!("\nhazard CNN backend: {backend}\n");
-    }
-    out
-}
-
-/// The tracking phase of an evaluation mission. The tractor pulls away when tracking begins and
-/// the turn paths turn 30 m on, about 21 s later at 1.5 m/s: 15 s of tracking puts the turn in
-/// the middle of the landing.
-const EVALUATION_TRACKING_S: f64 = 15.0;
-
-fn evaluation_table(rows: &[(f64, f64, PathKind, SimSummary)], args: &SimArgs) -> String {
-    let mut out = format!(
-        "{} seeds per cell from seed {}, tractor at {} m/s, {} wind\n\n",
-        args.runs,
-        args.seed,
-        args.platform_speed_m_s,
-        if args.dryden { "Dryden" } else { "gust" }
-    );
-    out += "| marker rate (fps) | wind (m/s) | path | success | touchdown error p50 / p95 (m) | time to land p50 (s) | energy (Wh) | of which companion (Wh) |\n";
-    out += "| --- | --- | --- | --- | --- | --- | --- | --- |\n";
-    for (rate, wind, path, s) in rows {
-        let metres = |v: Option<f64>| v.map_or_else(|| "—".into(), |v| format!("{v:.3}"));
-        out += &format!(
-            "| {rate} | {wind} | {path} | {:.0} % | {} / {} | {} | {:.2} | {:.3} |\n",
-            100.0 * s.success_rate,
-            metres(s.touchdown_error_p50_m),
-            metres(s.touchdown_error_p95_m),
-            s.time_to_land_p50_s
-                .map_or_else(|| "—".into(), |v| format!("{v:.1}")),
-            s.energy_mean_wh,
-            s.companion_energy_mean_wh
-        );
     }
     out
 }
@@ -787,7 +765,7 @@ fn path_table(rows: &[PathRow], args: &SimArgs, wall_s: f64) -> String {
     );
     let mut out = format!(
         "{} seeds per cell from seed {}, {tracking}, wind {} m/s; {} missions in {:.0} s\n\n",
-        args.runs,
+        args.runs(),
         args.seed,
         args.wind_m_s,
         rows.iter().map(|r| r.runs).sum::<usize>(),
