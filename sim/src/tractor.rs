@@ -591,7 +591,7 @@ impl Tractor {
 
     /// The field rocks the pad as [`PadMotion`] says, reproducibly for `seed`.
     pub fn with_rough_field(mut self, motion: PadMotion, seed: u64) -> Self {
-        let mut rng = SplitMix64::new(seed ^ 0x6669_656c_64);
+        let mut rng = SplitMix64::new(seed ^ 0x0066_6965_6c64);
         // One period's travel at cruise speed is the main wavelength; the second wave is
         // 0.6–1.6 of it, so the rocking never repeats exactly.
         let main_m = (motion.tilt_period_s * self.params.speed_m_s).max(0.5);

@@ -214,7 +214,7 @@ pub fn simulate(
     // capture time, in order.
     let mut in_transit: std::collections::VecDeque<(f64, CapturedFrame)> =
         std::collections::VecDeque::new();
-    let mut latency_rng = SplitMix64::new(options.seed ^ 0x6c61_7465_6e63_79);
+    let mut latency_rng = SplitMix64::new(options.seed ^ 0x006c_6174_656e_6379);
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
     // The hazards stand beside the track the tractor will drive while the CNN watches.
     let watch_s: f64 = model.config.mission.phases[1..model.config.mission.phases.len() - 1]

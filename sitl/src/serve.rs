@@ -169,7 +169,7 @@ pub struct ServeOutcome {
 enum Flyer {
     Simulated {
         vehicle: Box<Multirotor>,
-        autopilot: MavlinkAutopilot,
+        autopilot: Box<MavlinkAutopilot>,
         wind: Box<Wind>,
         battery: SimBattery,
         rotors: RotorPowerModel,
@@ -243,7 +243,7 @@ pub fn serve(
                     Multirotor::on_ground(VehicleParams::default(), Vector3::zeros())
                         .map_err(|e| setup(&e))?,
                 ),
-                autopilot: MavlinkAutopilot::bind_local(options.mavlink_addr, false)?,
+                autopilot: Box::new(MavlinkAutopilot::bind_local(options.mavlink_addr, false)?),
                 wind: Box::new(
                     Wind::new(
                         wind_config(options.wind_speed_m_s, options.wind_kind),
