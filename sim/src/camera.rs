@@ -18,7 +18,8 @@ use algorithms::estimation::projection::Attitude;
 use algorithms::vision::camera::{self, CameraPose, PinholeCamera, RadialTangential};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::render::{
-    render, ImageEffects, MotionBlur, RenderError, RenderOptions, SplitMix64,
+    finish, render, render_rows, ImageEffects, MotionBlur, RenderError, RenderOptions, Scene,
+    SplitMix64,
 };
 use nalgebra::Vector3;
 use thiserror::Error;
@@ -94,6 +95,9 @@ pub struct SimCameraConfig {
     pub drift_period_s: f64,
     /// Samples per pixel side: 1 is fast; 2 anti-aliases patch edges at 4× the patch cost.
     pub supersampling: usize,
+    /// Threads a frame is rendered on, in bands of rows (the image is the same on any number);
+    /// 0: one per core.
+    pub render_threads: usize,
 }
 
 impl Default for SimCameraConfig {
@@ -111,6 +115,7 @@ impl Default for SimCameraConfig {
             contrast_amplitude: 0.1,
             drift_period_s: 40.0,
             supersampling: 1,
+            render_threads: 0,
         }
     }
 }
@@ -354,15 +359,50 @@ impl SimCamera {
         }
         let pose = Self::pose(&vehicle.position_ned_m, a);
         let visible = scene.visible_scene(&self.model, &pose)?;
-        let options = RenderOptions {
-            supersampling: self.config.supersampling,
-            effects: ImageEffects::default(),
-        };
-        let clean = render(&self.model, &pose, &visible, &options)?;
+        let clean = self.render_clean(&pose, &visible)?;
         let effects = self.effects(time_s, frame_index, vehicle, &pose);
         let image = Arc::new(post_process(&clean, &effects)?);
         self.last_image = Some(Arc::clone(&image));
         Ok(SimFrame { frame_index, image })
+    }
+
+    /// The frame before the camera's effects, its bands of rows rendered on their own threads.
+    fn render_clean(&self, pose: &CameraPose, visible: &Scene) -> Result<GrayImage, CameraError> {
+        let (width, height) = (self.model.width_px, self.model.height_px);
+        let threads = match self.config.render_threads {
+            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            n => n,
+        }
+        .clamp(1, height.max(1));
+        let mut pixels = vec![0f32; width * height];
+        let rows_per_band = height.div_ceil(threads);
+        let supersampling = self.config.supersampling;
+        if threads == 1 {
+            render_rows(&self.model, pose, visible, supersampling, 0, &mut pixels)?;
+        } else {
+            std::thread::scope(|scope| {
+                let bands: Vec<_> = pixels
+                    .chunks_mut(rows_per_band * width)
+                    .enumerate()
+                    .map(|(band, out)| {
+                        scope.spawn(move || {
+                            render_rows(
+                                &self.model,
+                                pose,
+                                visible,
+                                supersampling,
+                                band * rows_per_band,
+                                out,
+                            )
+                        })
+                    })
+                    .collect();
+                bands
+                    .into_iter()
+                    .try_for_each(|band| band.join().expect("a render thread does not panic"))
+            })?;
+        }
+        Ok(finish(pixels, width, height, &ImageEffects::default())?)
     }
 
     /// Brightness, contrast, noise and motion blur for one frame.
@@ -553,6 +593,40 @@ mod tests {
                 yaw_rad: 0.5,
             })
             .unwrap()
+    }
+
+    /// Bands of rows on several threads give the very image one thread gives (an odd
+    /// number of bands, so they are not all the same height).
+    #[test]
+    fn threaded_rendering_gives_the_same_frame() {
+        let scene = field_with_pad();
+        let vehicle = VehiclePose {
+            position_ned_m: Vector3::new(0.5, -0.2, -6.0),
+            attitude: Attitude {
+                roll_rad: 0.05,
+                pitch_rad: -0.1,
+                yaw_rad: 0.3,
+            },
+            velocity_ned_m_s: Vector3::new(1.0, 0.0, 0.0),
+            body_rates_rad_s: Vector3::zeros(),
+        };
+        let frame = |threads: usize| {
+            let config = SimCameraConfig {
+                render_threads: threads,
+                ..small_config()
+            };
+            let mut camera = SimCamera::new(config, 3).unwrap();
+            camera.capture_frame(0.0, &vehicle, &scene).unwrap().image
+        };
+        let one = frame(1);
+        assert_eq!(*frame(3), *one);
+        assert_eq!(*frame(0), *one);
+        // The pad is in the picture: the comparison is of a frame with content.
+        let (min, max) = one
+            .data()
+            .iter()
+            .fold((u8::MAX, 0), |(lo, hi), &p| (lo.min(p), hi.max(p)));
+        assert!(max - min > 100, "a flat frame: {min}..{max}");
     }
 
     #[test]

@@ -700,7 +700,16 @@ impl BakedTexture {
         }
         // Beyond the baked square the field repeats: a tractor drives kilometres in a long
         // mission, and computing the field there would cost the renderer half its speed.
-        let (gn, ge) = (gn.rem_euclid(limit), ge.rem_euclid(limit));
+        // `rem_euclid` is a library fmod call; inside the square (nearly every sample) it is
+        // the identity, so it is skipped there.
+        let wrap = |g: f64| {
+            if (0.0..limit).contains(&g) {
+                g
+            } else {
+                g.rem_euclid(limit)
+            }
+        };
+        let (gn, ge) = (wrap(gn), wrap(ge));
         if !(gn < limit && ge < limit) {
             return self.source.sample(north_m, east_m);
         }

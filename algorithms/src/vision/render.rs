@@ -30,6 +30,13 @@ use super::image::{DepthImage, FrameError, GrayImage};
 pub enum RenderError {
     #[error("supersampling must be 1 to 16 samples per pixel side, got {0}")]
     Supersampling(usize),
+    #[error("a buffer of {len} values is not whole rows of a {width}×{height} image from row {first_row}")]
+    RowBuffer {
+        width: usize,
+        height: usize,
+        first_row: usize,
+        len: usize,
+    },
     #[error("patch {index} must have a positive, finite size, got {width_m} m × {height_m} m")]
     PatchSize {
         index: usize,
@@ -374,15 +381,41 @@ pub fn render(
     scene: &Scene,
     options: &RenderOptions,
 ) -> Result<GrayImage, RenderError> {
-    let ss = options.supersampling;
+    options.effects.validate()?;
+    let (width, height) = (camera.width_px, camera.height_px);
+    let mut pixels = vec![0f32; width * height];
+    render_rows(camera, pose, scene, options.supersampling, 0, &mut pixels)?;
+    finish(pixels, width, height, &options.effects)
+}
+
+/// The scene's intensity (0 black to 1 white, before effects) in the image rows from
+/// `first_row` that `out` holds (`out.len()` a multiple of the image width): the part of
+/// [`render`] that callers may split across threads, since rows are independent.
+pub fn render_rows(
+    camera: &PinholeCamera,
+    pose: &CameraPose,
+    scene: &Scene,
+    supersampling: usize,
+    first_row: usize,
+    out: &mut [f32],
+) -> Result<(), RenderError> {
+    let ss = supersampling;
     if !(1..=16).contains(&ss) {
         return Err(RenderError::Supersampling(ss));
     }
-    options.effects.validate()?;
     // The camera's fields are public, so its size is checked here too.
     let (width, height) = (camera.width_px, camera.height_px);
     if width == 0 || height == 0 {
         return Err(FrameError::Empty { width, height }.into());
+    }
+    let rows = out.len() / width;
+    if out.len() % width != 0 || first_row + rows > height {
+        return Err(RenderError::RowBuffer {
+            width,
+            height,
+            first_row,
+            len: out.len(),
+        });
     }
     let prepared = prepare_patches(pose, scene)?;
 
@@ -408,9 +441,9 @@ pub fn render(
         }
     };
 
-    let mut pixels = vec![0f32; width * height];
     let mut candidates: Vec<&PreparedPatch<'_>> = Vec::with_capacity(prepared.len());
-    for row in 0..height {
+    for (chunk_row, row_out) in out.chunks_exact_mut(width).enumerate() {
+        let row = first_row + chunk_row;
         // Without distortion a row's samples share their normalised y: only the patches that
         // span it need testing in this row.
         candidates.clear();
@@ -423,10 +456,7 @@ pub fn render(
                 .iter()
                 .filter(|p| !undistorted || (p.bounds[2] <= row_y1 && p.bounds[3] >= row_y0)),
         );
-        for (col, out) in pixels[row * width..(row + 1) * width]
-            .iter_mut()
-            .enumerate()
-        {
+        for (col, out) in row_out.iter_mut().enumerate() {
             let mut sum = 0f32;
             // The background is texture, not truth: it is sampled once per pixel, at the centroid
             // of the samples that see it, which makes supersampling cost little more than the
@@ -467,7 +497,7 @@ pub fn render(
             *out = sum * inv_samples;
         }
     }
-    finish(pixels, width, height, &options.effects)
+    Ok(())
 }
 
 /// The scene's patches checked and prepared for the inner loop, topmost first.
@@ -671,7 +701,8 @@ pub fn apply_effects(image: &GrayImage, effects: &ImageEffects) -> Result<GrayIm
 }
 
 /// Blur, exposure and noise on intensities in [0, 1], then 8-bit quantisation.
-fn finish(
+/// Intensities (0 black to 1 white) to a grey image, with the effects.
+pub fn finish(
     mut pixels: Vec<f32>,
     width: usize,
     height: usize,
