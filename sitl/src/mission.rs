@@ -91,6 +91,8 @@ pub struct SimOptions {
     pub real_time: bool,
     /// How far what the runtime sees is from the truth ([`Realism::ideal`]: not at all).
     pub realism: Realism,
+    /// Threads a camera frame is rendered on; 0: one per core.
+    pub render_threads: usize,
 }
 
 impl Default for SimOptions {
@@ -109,6 +111,7 @@ impl Default for SimOptions {
             stereo: StereoCameraConfig::default(),
             real_time: false,
             realism: Realism::default(),
+            render_threads: 0,
         }
     }
 }
@@ -207,6 +210,7 @@ pub fn simulate(
     .map_err(|e| setup(&e))?;
     let camera_config = SimCameraConfig {
         exposure_ms: realism.camera.exposure_ms,
+        render_threads: options.render_threads,
         ..camera_config(model)
     };
     let camera_period_s = 1.0 / camera_config.rate_fps;

@@ -67,6 +67,26 @@ fn no_wind_straight_path_lands_within_15_cm() {
     assert!(outcome.hazard_frames > 0);
 }
 
+/// The landing's hardest standard case, in the realistic world (estimator noise and drift,
+/// telemetry and camera latency, a rocking pad, a noisy rangefinder, a tractor driven by a
+/// person): 12 m/s gusts while the tractor turns through 180°, the marker at 10 fps.
+#[test]
+fn a_gusty_12_m_s_landing_on_the_180_degree_turn_lands_within_15_cm() {
+    let options = SimOptions {
+        seed: 3,
+        path: sim::tractor::PathKind::Turn180,
+        wind_speed_m_s: 12.0,
+        tracking_s: Some(15.0),
+        fixed_levels: vec![("detection".into(), 10.0)],
+        ..SimOptions::default()
+    };
+    assert!(!options.realism.is_ideal());
+    let outcome = fly(options);
+    assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
+    let error_m = outcome.touchdown_error_m.unwrap();
+    assert!(error_m <= 0.15, "touchdown error {error_m} m");
+}
+
 /// The onboard path end to end in one process: the runtime on the wall clock (tasks on the
 /// real-time scheduler's threads) over real UDP sockets, frames through the in-memory camera
 /// source, the world stepped at the pace of real time with its autopilot streaming, not in

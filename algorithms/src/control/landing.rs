@@ -26,7 +26,7 @@ use nalgebra::{Matrix3, Vector2, Vector3};
 use thiserror::Error;
 
 use super::mpc::{MpcConfig, MpcController, MpcError, MpcInput};
-use super::pid::{HorizontalPid, PidConfig, PidError, PidGains, PidInput, TwoStageGains};
+use super::pid::{HorizontalPid, PidConfig, PidError, PidInput};
 
 /// Which controller steers horizontally while a fix is in hand.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -122,10 +122,15 @@ pub struct LandingConfig {
     pub max_horizontal_speed_m_s: f64,
     /// Wind feed-forward: what the autopilot's velocity loop falls short of the command (its
     /// integrator lags a changing wind, e.g. the wind fading as the vehicle descends) is
-    /// estimated with this low-pass time constant and added to the next command. 0: off.
+    /// estimated with this low-pass time constant and added to the next command. 0 (the
+    /// default): off, the seed's law.
     pub wind_compensation_tau_s: f64,
     /// Limit on that compensation.
     pub max_wind_compensation_m_s: f64,
+    /// The autopilot's velocity response, as a first-order lag (PX4's MPC_XY_VEL_P_ACC = 1.8
+    /// and the attitude loop: about 0.4 s): what a command is expected to give, so that the
+    /// lag of a manoeuvre is not taken for wind.
+    pub autopilot_velocity_tau_s: f64,
     pub pid: PidConfig,
     pub controller: HorizontalController,
 }
@@ -142,9 +147,7 @@ impl Default for LandingConfig {
             centred_dwell_s: 0.5,
             commit_dwell_s: 0.3,
             descent_speed_m_s: 0.7,
-            // Quick through the last metre, where the wind fades fastest and the autopilot's
-            // integrator lags it most (1.0 m/s: p95 0.34 m at 12 m/s; 1.5 m/s: 0.24 m).
-            final_descent_speed_m_s: 1.5,
+            final_descent_speed_m_s: 1.0,
             max_height_hold_speed_m_s: 1.0,
             height_gain_per_s: 1.0,
             lost_timeout_s: 1.0,
@@ -154,20 +157,10 @@ impl Default for LandingConfig {
             platform_accel_lead_s: 0.2,
             platform_accel_filter_tau_s: 0.2,
             max_horizontal_speed_m_s: 10.0,
-            wind_compensation_tau_s: 1.0,
+            wind_compensation_tau_s: 0.0,
             max_wind_compensation_m_s: 3.0,
-            pid: PidConfig {
-                gains: TwoStageGains {
-                    // Seed 000's close-in gains with integral action: a steady wind the
-                    // autopilot does not fully reject otherwise leaves a steady offset.
-                    low: PidGains {
-                        ki_per_s2: 0.5,
-                        ..TwoStageGains::seed_simulation().low
-                    },
-                    ..TwoStageGains::seed_simulation()
-                },
-                ..PidConfig::default()
-            },
+            autopilot_velocity_tau_s: 0.4,
+            pid: PidConfig::default(),
             controller: HorizontalController::Pid,
         }
     }
@@ -212,6 +205,7 @@ impl LandingConfig {
             ("touchdown_height_m", self.touchdown_height_m),
             ("wind_compensation_tau_s", self.wind_compensation_tau_s),
             ("max_wind_compensation_m_s", self.max_wind_compensation_m_s),
+            ("autopilot_velocity_tau_s", self.autopilot_velocity_tau_s),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(config_error(name, value, "must be a finite number ≥ 0"));
@@ -441,6 +435,8 @@ struct Machine {
     platform_accel_ne_m_s2: Vector2<f64>,
     /// The last horizontal command, and the autopilot's estimated shortfall against it.
     last_command_ne_m_s: Option<Vector2<f64>>,
+    /// The velocity the commands so far should have given, by the autopilot's lag.
+    expected_velocity_ne_m_s: Option<Vector2<f64>>,
     velocity_shortfall_ne_m_s: Vector2<f64>,
 }
 
@@ -459,6 +455,7 @@ impl Machine {
             previous_platform_velocity_ne_m_s: None,
             platform_accel_ne_m_s2: Vector2::zeros(),
             last_command_ne_m_s: None,
+            expected_velocity_ne_m_s: None,
             velocity_shortfall_ne_m_s: Vector2::zeros(),
         })
     }
@@ -516,7 +513,13 @@ impl Machine {
         if let (Some(previous_s), Some(command)) = (self.last_time_s, self.last_command_ne_m_s) {
             if c.wind_compensation_tau_s > 0.0 {
                 let dt_s = time_s - previous_s;
-                let shortfall = command - input.uav_velocity_ne_m_s;
+                let lag = dt_s / (c.autopilot_velocity_tau_s + dt_s);
+                let expected = self
+                    .expected_velocity_ne_m_s
+                    .unwrap_or(input.uav_velocity_ne_m_s);
+                let expected = expected + lag * (command - expected);
+                self.expected_velocity_ne_m_s = Some(expected);
+                let shortfall = expected - input.uav_velocity_ne_m_s;
                 let alpha = dt_s / (c.wind_compensation_tau_s + dt_s);
                 self.velocity_shortfall_ne_m_s = clamp_norm(
                     self.velocity_shortfall_ne_m_s
@@ -597,6 +600,7 @@ impl Machine {
             horizontal + self.velocity_shortfall_ne_m_s
         } else {
             self.velocity_shortfall_ne_m_s = Vector2::zeros();
+            self.expected_velocity_ne_m_s = None;
             horizontal
         };
         let horizontal = clamp_norm(horizontal, c.max_horizontal_speed_m_s);
@@ -804,6 +808,48 @@ mod tests {
         let out = run(&mut c, &mut t_s, 1.0, Some(0.0), 7.5);
         assert_eq!(out.mode, LandingMode::Descend);
         (c, t_s)
+    }
+
+    /// An autopilot that falls 0.8 m/s short of every command (a wind its integrator does not
+    /// hold): with the feed-forward, the vehicle's true velocity comes to what the guidance
+    /// wants; without it, it stays 0.8 m/s short. The vehicle is simulated here as exactly
+    /// that: the command, lagged by the configured response, minus the shortfall.
+    #[test]
+    fn wind_feed_forward_makes_up_the_autopilots_shortfall() {
+        let shortfall = Vector2::new(0.8, -0.3);
+        let fly = |tau_s: f64| {
+            let config = LandingConfig {
+                wind_compensation_tau_s: tau_s,
+                ..LandingConfig::default()
+            };
+            let mut c = LandingController::new(config).unwrap();
+            let platform = Vector2::new(2.0, 0.0);
+            let mut velocity = Vector2::zeros();
+            let mut desired = Vector2::zeros();
+            for step in 1..=400 {
+                let t_s = step as f64 * DT_S;
+                let out = c
+                    .step(&LandingInput {
+                        uav_velocity_ne_m_s: velocity,
+                        platform_velocity_ne_m_s: platform,
+                        ..input(t_s, fix_at(0.0, 0.0, 7.5), 7.5)
+                    })
+                    .unwrap();
+                let command = out.velocity_setpoint_ned_m_s.xy();
+                // Centred on the pad: the guidance wants the platform's velocity.
+                desired = platform;
+                let lag = DT_S / (config.autopilot_velocity_tau_s + DT_S);
+                velocity += lag * (command - shortfall - velocity);
+            }
+            (velocity - desired).norm()
+        };
+        let without = fly(0.0);
+        let with = fly(1.0);
+        assert!(
+            (without - shortfall.norm()).abs() < 0.05,
+            "without: {without}"
+        );
+        assert!(with < 0.05, "with the feed-forward still {with} m/s off");
     }
 
     #[test]

@@ -42,6 +42,16 @@ struct Params {
     /// detection period.
     #[serde(default = "default_max_vision_gap")]
     max_vision_gap_s: f64,
+    /// Descent speed after the commit.
+    #[serde(default = "default_final_descent_speed")]
+    final_descent_speed_m_s: f64,
+    /// Wind feed-forward: the low-pass time constant of the autopilot's estimated velocity
+    /// shortfall, added to the commands (0: off).
+    #[serde(default)]
+    wind_compensation_tau_s: f64,
+    /// Integral gain of the PID's close-in stage (seed 000's Table 2: 0).
+    #[serde(default)]
+    integral_gain_close_per_s2: f64,
     #[serde(default)]
     controller: ControllerKind,
     /// The MPC's horizon in seconds; its step count follows from the QoS period.
@@ -77,6 +87,9 @@ fn default_mpc_max_accel() -> f64 {
 }
 fn default_mpc_solve_time_limit() -> f64 {
     MpcConfig::default().solve_time_limit_s
+}
+fn default_final_descent_speed() -> f64 {
+    LandingConfig::default().final_descent_speed_m_s
 }
 fn default_initial() -> f64 {
     7.5
@@ -131,6 +144,13 @@ impl GuidanceTask {
         let controller = LandingController::new(LandingConfig {
             initial_height_m: params.initial_altitude_m,
             final_landing_height_m: params.final_altitude_m,
+            final_descent_speed_m_s: params.final_descent_speed_m_s,
+            wind_compensation_tau_s: params.wind_compensation_tau_s,
+            pid: {
+                let mut pid = defaults.pid;
+                pid.gains.low.ki_per_s2 = params.integral_gain_close_per_s2;
+                pid
+            },
             controller,
             // The MPC predicts with the platform's acceleration: a fresher estimate suits it.
             platform_accel_filter_tau_s: match params.controller {
