@@ -18,8 +18,7 @@ use algorithms::estimation::projection::Attitude;
 use algorithms::vision::camera::{self, CameraPose, PinholeCamera, RadialTangential};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::render::{
-    finish, render, render_rows, ImageEffects, MotionBlur, RenderError, RenderOptions, Scene,
-    SplitMix64,
+    finish, render_rows, ImageEffects, MotionBlur, RenderError, Scene, SplitMix64,
 };
 use nalgebra::Vector3;
 use thiserror::Error;
@@ -569,6 +568,7 @@ mod tests {
     use algorithms::estimation::projection::pad_relative_to_uav_ned_m;
     use algorithms::vision::landing_marker::{LandingMarkerConfig, LandingMarkerDetector};
     use algorithms::vision::render::Texture;
+    use algorithms::vision::render::{render, RenderOptions};
 
     fn still() -> Vector3<f64> {
         Vector3::zeros()
