@@ -409,7 +409,7 @@ pub fn render_rows(
         return Err(FrameError::Empty { width, height }.into());
     }
     let rows = out.len() / width;
-    if out.len() % width != 0 || first_row + rows > height {
+    if !out.len().is_multiple_of(width) || first_row + rows > height {
         return Err(RenderError::RowBuffer {
             width,
             height,
