@@ -221,6 +221,8 @@ pub struct SimCamera {
     last_image: Option<Arc<GrayImage>>,
     frozen: Vec<Window>,
     dropped: Vec<Window>,
+    /// Bands a frame is rendered in, resolved once (asking for the cores reads cgroup files).
+    render_threads: usize,
 }
 
 impl SimCamera {
@@ -242,6 +244,11 @@ impl SimCamera {
             last_image: None,
             frozen: Vec::new(),
             dropped: Vec::new(),
+            render_threads: match config.render_threads {
+                0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+                n => n,
+            }
+            .clamp(1, config.height_px.max(1)),
         })
     }
 
@@ -368,11 +375,7 @@ impl SimCamera {
     /// The frame before the camera's effects, its bands of rows rendered on their own threads.
     fn render_clean(&self, pose: &CameraPose, visible: &Scene) -> Result<GrayImage, CameraError> {
         let (width, height) = (self.model.width_px, self.model.height_px);
-        let threads = match self.config.render_threads {
-            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
-            n => n,
-        }
-        .clamp(1, height.max(1));
+        let threads = self.render_threads;
         let mut pixels = vec![0f32; width * height];
         let rows_per_band = height.div_ceil(threads);
         let supersampling = self.config.supersampling;

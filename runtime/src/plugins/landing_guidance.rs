@@ -304,6 +304,33 @@ mod tests {
         ));
     }
 
+    /// The wind parameters reach the controller, and a bad one is refused by name.
+    #[test]
+    fn the_wind_parameters_are_taken_and_checked() {
+        let windy = task(
+            "wind_compensation_tau_s = 1.0\nintegral_gain_close_per_s2 = 0.5\nfinal_descent_speed_m_s = 1.5",
+        )
+        .unwrap();
+        let config = windy.controller.config();
+        assert_eq!(config.wind_compensation_tau_s, 1.0);
+        assert_eq!(config.pid.gains.low.ki_per_s2, 0.5);
+        assert_eq!(config.final_descent_speed_m_s, 1.5);
+        // Unset, they are the seed's law.
+        let plain = task("").unwrap();
+        assert_eq!(plain.controller.config().wind_compensation_tau_s, 0.0);
+        assert_eq!(plain.controller.config().pid.gains.low.ki_per_s2, 0.0);
+        for (params, name) in [
+            ("wind_compensation_tau_s = -1.0", "wind_compensation_tau_s"),
+            ("final_descent_speed_m_s = 0.0", "final_descent_speed_m_s"),
+            ("integral_gain_close_per_s2 = -0.5", "ki_per_s2"),
+        ] {
+            let Err(TaskError::Params(why)) = task(params) else {
+                panic!("{params} must be refused");
+            };
+            assert!(why.contains(name), "{params}: {why}");
+        }
+    }
+
     /// The MPC's model step follows the QoS period; its horizon keeps its length in seconds.
     #[test]
     fn the_mpc_is_retimed_to_each_qos_period() {
