@@ -17,7 +17,26 @@ fn reference() -> (MissionModel, PluginRegistry) {
     (load_mission_model(&loaded).unwrap(), registry)
 }
 
+/// The cores: lockstep missions share them (their outcome does not depend on the host's
+/// speed); a mission on the wall clock has them to itself, since missions rendering beside it
+/// would starve its real-time tasks, as they would on a companion computer short of CPU.
+static CORES: std::sync::RwLock<()> = std::sync::RwLock::new(());
+
 fn fly(options: SimOptions) -> SimOutcome {
+    let _shared = if options.real_time {
+        None
+    } else {
+        Some(
+            CORES
+                .read()
+                .unwrap_or_else(|poisoned| poisoned.into_inner()),
+        )
+    };
+    let _alone = options.real_time.then(|| {
+        CORES
+            .write()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    });
     let (model, registry) = reference();
     simulate(&model, &registry, &options).unwrap()
 }
