@@ -134,7 +134,8 @@ fn a_ground_station_taking_px4_over_stops_qosrt_commanding() {
             "--json",
         ],
     );
-    // Wait (on qosrt's log) for the tracking phase: qosrt holds OFFBOARD.
+    // Wait (on qosrt's log) for the tracking phase with OFFBOARD engaged (on a loaded machine
+    // PX4 may be switched to OFFBOARD after the phase began): qosrt holds OFFBOARD.
     let stderr = child.stderr.take().unwrap();
     let (lines_tx, lines_rx) = std::sync::mpsc::channel();
     std::thread::spawn(move || {
@@ -144,10 +145,8 @@ fn a_ground_station_taking_px4_over_stops_qosrt_commanding() {
     });
     let deadline = Instant::now() + Duration::from_secs(60);
     let mut log = Vec::new();
-    while !log
-        .iter()
-        .any(|l: &String| l.contains("phase tracking started"))
-    {
+    let seen = |log: &[String], text: &str| log.iter().any(|l| l.contains(text));
+    while !(seen(&log, "phase tracking started") && seen(&log, "offboard engaged")) {
         assert!(
             Instant::now() < deadline,
             "never reached tracking: {log:#?}"

@@ -279,6 +279,7 @@ pub(crate) fn hovering_vehicle() -> VehicleState {
         // The pad lies on the ground in the synthetic frames.
         position_ned_m: Some(Vector3::new(0.0, 0.0, -HOVER_HEIGHT_M)),
         landed: false,
+        offboard: true,
     }
 }
 

@@ -51,6 +51,9 @@ pub struct VehicleState {
     pub position_ned_m: Option<nalgebra::Vector3<f64>>,
     /// The autopilot reports the vehicle on the ground.
     pub landed: bool,
+    /// The autopilot's last heartbeat says it flies the companion's setpoints (PX4 OFFBOARD,
+    /// ArduPilot GUIDED).
+    pub offboard: bool,
 }
 
 /// The tracker's output.

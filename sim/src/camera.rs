@@ -12,13 +12,13 @@
 //! [`SimCamera::drop_frames`] (no frame: [`CameraError::Dropped`], and a gap in the frame index).
 
 use std::f64::consts::PI;
-use std::sync::Arc;
+use std::sync::{Arc, Condvar, Mutex, PoisonError};
 
 use algorithms::estimation::projection::Attitude;
 use algorithms::vision::camera::{self, CameraPose, PinholeCamera, RadialTangential};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::render::{
-    finish, render_rows, ImageEffects, MotionBlur, RenderError, Scene, SplitMix64,
+    render_rows, ImageEffects, MotionBlur, RenderError, Scene, SplitMix64,
 };
 use nalgebra::Vector3;
 use thiserror::Error;
@@ -218,7 +218,8 @@ pub struct SimCamera {
     /// The frame slot (⌊t · rate⌋) of the last capture.
     last_slot: Option<i64>,
     next_frame_index: u64,
-    last_image: Option<Arc<GrayImage>>,
+    /// The last frame rendered (or being rendered), which a frozen camera repeats.
+    last_frame: Option<Arc<FrameSlot>>,
     frozen: Vec<Window>,
     dropped: Vec<Window>,
     /// Bands a frame is rendered in, resolved once (asking for the cores reads cgroup files).
@@ -241,7 +242,7 @@ impl SimCamera {
             drift,
             last_slot: None,
             next_frame_index: 0,
-            last_image: None,
+            last_frame: None,
             frozen: Vec::new(),
             dropped: Vec::new(),
             render_threads: match config.render_threads {
@@ -332,12 +333,56 @@ impl SimCamera {
         self.capture_shared(time_s, vehicle, scene)
     }
 
+    /// As [`Self::capture_frame`], rendered on other threads while the caller goes on: what
+    /// the camera saw is fixed now, the image is ready when [`PendingFrame::wait`] returns. A
+    /// simulation renders a frame during its capture-to-delivery latency this way.
+    pub fn capture_deferred(
+        &mut self,
+        time_s: f64,
+        vehicle: &VehiclePose,
+        scene: &SimScene,
+    ) -> Result<PendingFrame, CameraError> {
+        let (frame_index, frame) = self.begin(time_s, vehicle, scene)?;
+        let slot = match frame {
+            Begun::Repeat(slot) => slot,
+            Begun::Render(job) => {
+                let slot = Arc::new(FrameSlot::default());
+                let filled = Arc::clone(&slot);
+                std::thread::spawn(move || filled.fill(job.run()));
+                self.last_frame = Some(Arc::clone(&slot));
+                slot
+            }
+        };
+        Ok(PendingFrame { frame_index, slot })
+    }
+
     fn capture_shared(
         &mut self,
         time_s: f64,
         vehicle: &VehiclePose,
         scene: &SimScene,
     ) -> Result<SimFrame, CameraError> {
+        let (frame_index, frame) = self.begin(time_s, vehicle, scene)?;
+        let image = match frame {
+            Begun::Repeat(slot) => slot.wait()?,
+            Begun::Render(job) => {
+                let slot = Arc::new(FrameSlot::default());
+                slot.fill(job.run());
+                self.last_frame = Some(Arc::clone(&slot));
+                slot.wait()?
+            }
+        };
+        Ok(SimFrame { frame_index, image })
+    }
+
+    /// A capture up to the rendering: the checks, the frame's number, the injected faults,
+    /// and what the camera sees with which effects.
+    fn begin(
+        &mut self,
+        time_s: f64,
+        vehicle: &VehiclePose,
+        scene: &SimScene,
+    ) -> Result<(u64, Begun), CameraError> {
         let a = &vehicle.attitude;
         let finite = time_s.is_finite()
             && vehicle.position_ned_m.iter().all(|x| x.is_finite())
@@ -356,55 +401,24 @@ impl SimCamera {
             return Err(CameraError::Dropped { time_s });
         }
         if self.frozen.iter().any(|w| w.contains(time_s)) {
-            if let Some(image) = &self.last_image {
-                return Ok(SimFrame {
-                    frame_index,
-                    image: Arc::clone(image),
-                });
+            if let Some(slot) = &self.last_frame {
+                return Ok((frame_index, Begun::Repeat(Arc::clone(slot))));
             }
         }
         let pose = Self::pose(&vehicle.position_ned_m, a);
         let visible = scene.visible_scene(&self.model, &pose)?;
-        let clean = self.render_clean(&pose, &visible)?;
         let effects = self.effects(time_s, frame_index, vehicle, &pose);
-        let image = Arc::new(post_process(&clean, &effects)?);
-        self.last_image = Some(Arc::clone(&image));
-        Ok(SimFrame { frame_index, image })
-    }
-
-    /// The frame before the camera's effects, its bands of rows rendered on their own threads.
-    fn render_clean(&self, pose: &CameraPose, visible: &Scene) -> Result<GrayImage, CameraError> {
-        let (width, height) = (self.model.width_px, self.model.height_px);
-        let threads = self.render_threads;
-        let mut pixels = vec![0f32; width * height];
-        let rows_per_band = height.div_ceil(threads);
-        let supersampling = self.config.supersampling;
-        if threads == 1 {
-            render_rows(&self.model, pose, visible, supersampling, 0, &mut pixels)?;
-        } else {
-            std::thread::scope(|scope| {
-                let bands: Vec<_> = pixels
-                    .chunks_mut(rows_per_band * width)
-                    .enumerate()
-                    .map(|(band, out)| {
-                        scope.spawn(move || {
-                            render_rows(
-                                &self.model,
-                                pose,
-                                visible,
-                                supersampling,
-                                band * rows_per_band,
-                                out,
-                            )
-                        })
-                    })
-                    .collect();
-                bands
-                    .into_iter()
-                    .try_for_each(|band| band.join().expect("a render thread does not panic"))
-            })?;
-        }
-        Ok(finish(pixels, width, height, &ImageEffects::default())?)
+        Ok((
+            frame_index,
+            Begun::Render(Box::new(RenderJob {
+                model: self.model,
+                pose,
+                visible,
+                effects,
+                supersampling: self.config.supersampling,
+                threads: self.render_threads,
+            })),
+        ))
     }
 
     /// Brightness, contrast, noise and motion blur for one frame.
@@ -474,94 +488,272 @@ impl SimCamera {
     }
 }
 
-/// The camera's effects on a rendered frame, in the renderer's order (motion blur, contrast and
-/// brightness, noise) and with its formulas, but written for speed: the blur adds whole shifted
-/// rows, and the noise is Irwin–Hall (the sum of four uniforms from one 64-bit draw, scaled to
-/// unit variance) instead of Box–Muller's logarithm and sine per pixel. Gaussian blur is not used
-/// by the camera and is refused.
-fn post_process(image: &GrayImage, effects: &ImageEffects) -> Result<GrayImage, RenderError> {
+/// A frame being rendered: its number now, its image when [`Self::wait`] returns.
+#[derive(Debug)]
+pub struct PendingFrame {
+    pub frame_index: u64,
+    slot: Arc<FrameSlot>,
+}
+
+impl PendingFrame {
+    /// The frame, once rendered (at once if it already is).
+    pub fn wait(self) -> Result<SimFrame, CameraError> {
+        Ok(SimFrame {
+            frame_index: self.frame_index,
+            image: self.slot.wait()?,
+        })
+    }
+}
+
+/// Where a frame's image arrives from the thread that renders it.
+#[derive(Debug, Default)]
+struct FrameSlot {
+    image: Mutex<Option<Result<Arc<GrayImage>, RenderError>>>,
+    ready: Condvar,
+}
+
+impl FrameSlot {
+    fn fill(&self, result: Result<GrayImage, RenderError>) {
+        let mut image = self.image.lock().unwrap_or_else(PoisonError::into_inner);
+        *image = Some(result.map(Arc::new));
+        self.ready.notify_all();
+    }
+
+    fn wait(&self) -> Result<Arc<GrayImage>, RenderError> {
+        let mut image = self.image.lock().unwrap_or_else(PoisonError::into_inner);
+        loop {
+            if let Some(result) = image.as_ref() {
+                return result.clone();
+            }
+            image = self
+                .ready
+                .wait(image)
+                .unwrap_or_else(PoisonError::into_inner);
+        }
+    }
+}
+
+/// A capture after its checks: the last frame again (a frozen camera), or one to render.
+enum Begun {
+    Repeat(Arc<FrameSlot>),
+    Render(Box<RenderJob>),
+}
+
+/// Everything a frame's rendering needs, owned, so another thread can do it.
+struct RenderJob {
+    model: PinholeCamera,
+    pose: CameraPose,
+    visible: Scene,
+    effects: ImageEffects,
+    supersampling: usize,
+    threads: usize,
+}
+
+impl RenderJob {
+    /// The frame: its bands of rows rendered on their own threads, then the camera's effects
+    /// applied to them on their own threads (the blur reads rows of the neighbouring bands, so
+    /// all are rendered first).
+    fn run(&self) -> Result<GrayImage, RenderError> {
+        let (width, height) = (self.model.width_px, self.model.height_px);
+        let mut clean = vec![0f32; width * height];
+        in_bands(&mut clean, width, self.threads, |first_row, out| {
+            render_rows(
+                &self.model,
+                &self.pose,
+                &self.visible,
+                self.supersampling,
+                first_row,
+                out,
+            )
+        })?;
+        post_process(&clean, width, height, &self.effects, self.threads)
+    }
+}
+
+/// Fills `out` (rows of `width`) band by band, each band's rows on its own thread:
+/// `fill(first_row, band)`.
+fn in_bands<T: Send, E: Send>(
+    out: &mut [T],
+    width: usize,
+    threads: usize,
+    fill: impl Fn(usize, &mut [T]) -> Result<(), E> + Sync,
+) -> Result<(), E> {
+    let rows = out.len() / width.max(1);
+    let rows_per_band = rows.div_ceil(threads.max(1)).max(1);
+    if threads <= 1 {
+        return fill(0, out);
+    }
+    let fill = &fill;
+    std::thread::scope(|scope| {
+        let bands: Vec<_> = out
+            .chunks_mut(rows_per_band * width)
+            .enumerate()
+            .map(|(band, rows)| scope.spawn(move || fill(band * rows_per_band, rows)))
+            .collect();
+        bands
+            .into_iter()
+            .try_for_each(|band| band.join().expect("a frame's band does not panic"))
+    })
+}
+
+/// The camera's effects on a rendered frame (intensities 0 to 1), in the renderer's order
+/// (motion blur, contrast and brightness, noise) and with its formulas, but written for speed:
+/// the blur adds whole shifted rows, and the noise is read from a table of Gaussian samples
+/// (see [`develop_rows`]) instead of drawn per pixel, each row from a generator of its own so
+/// bands of rows go to threads and give the same frame. Gaussian blur is not used by the camera
+/// and is refused.
+fn post_process(
+    clean: &[f32],
+    width: usize,
+    height: usize,
+    effects: &ImageEffects,
+    threads: usize,
+) -> Result<GrayImage, RenderError> {
     if effects.gaussian_blur_sigma_px != 0.0 {
         return Err(RenderError::Effect {
             name: "gaussian_blur_sigma_px",
             value: effects.gaussian_blur_sigma_px,
         });
     }
-    let (width, height) = (image.width(), image.height());
-    let source: Vec<f32> = image.data().iter().map(|&p| p as f32).collect();
-    let pixels = match effects.motion_blur {
-        Some(blur) if blur.length_px > 0.0 && blur.length_px.is_finite() => {
-            motion_blur(&source, width, height, blur)
-        }
-        _ => source,
+    let taps = match effects.motion_blur {
+        Some(blur) if blur.length_px > 0.0 && blur.length_px.is_finite() => blur_kernel(blur),
+        _ => Vec::new(),
     };
-    let contrast = effects.contrast as f32;
-    let offset = (0.5 - 0.5 * contrast + effects.brightness as f32) * 255.0;
-    // Four 16-bit uniforms sum to variance 4/12: × √3 for unit variance.
-    let noise_scale = effects.noise_sigma as f32 * 3f32.sqrt() / 65536.0;
-    let mut rng = SplitMix64::new(effects.noise_seed);
-    let data = pixels
-        .iter()
-        .map(|&level| {
-            let mut level = contrast * level + offset;
-            if noise_scale > 0.0 {
-                let bits = rng.next_u64();
-                let sum: u64 = (0..4).map(|k| (bits >> (16 * k)) & 0xffff).sum();
-                level += noise_scale * (sum as f32 - 2.0 * 65535.0);
-            }
-            (level.clamp(0.0, 255.0) + 0.5) as u8
-        })
-        .collect();
+    let mut data = vec![0u8; width * height];
+    in_bands(&mut data, width, threads, |first_row, out| {
+        develop_rows(clean, width, height, &taps, effects, first_row, out);
+        Ok::<(), RenderError>(())
+    })?;
     Ok(GrayImage::from_vec(width, height, data)?)
 }
 
-/// Mean over a centred segment of the motion, sampled about every half pixel, bilinearly, edges
-/// clamped. Each sample is one constant shift of the whole image, so its bilinear weights are the
-/// same for every pixel and the rows add as plain slices.
-fn motion_blur(source: &[f32], width: usize, height: usize, blur: MotionBlur) -> Vec<f32> {
+/// One tap of a motion blur's kernel: the image shifted by whole pixels (dx, dy), weighted.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct BlurTap {
+    dx: isize,
+    dy: isize,
+    weight: f32,
+}
+
+/// The blur's kernel: the mean over a centred segment of the motion, sampled about every half
+/// pixel, each sample bilinear between four whole-pixel taps; samples share taps, so the
+/// taps are merged (a 4 px blur has about 15 taps, not 36).
+fn blur_kernel(blur: MotionBlur) -> Vec<BlurTap> {
     let steps = (2.0 * blur.length_px).ceil().max(1.0) as usize + 1;
     let (sin, cos) = blur.angle_rad.sin_cos();
-    let mut out = vec![0f32; source.len()];
     let weight_per_step = 1.0 / steps as f32;
-    let last = width as isize - 1;
+    let mut taps: Vec<BlurTap> = Vec::new();
     for k in 0..steps {
         let s = (k as f64 / (steps - 1) as f64 - 0.5) * blur.length_px;
-        let (dx, dy) = (s * cos, s * sin);
-        let (ix, iy) = (dx.floor() as isize, dy.floor() as isize);
-        let (fx, fy) = ((dx - ix as f64) as f32, (dy - iy as f64) as f32);
-        let clamp_y = |y: isize| y.clamp(0, height as isize - 1) as usize;
-        // Output columns whose two source columns x + ix, x + ix + 1 both lie on the image.
-        let lo = (-ix).clamp(0, width as isize) as usize;
-        let hi = (last - ix).clamp(lo as isize, width as isize) as usize;
-        for y in 0..height {
-            let rows = [clamp_y(y as isize + iy), clamp_y(y as isize + iy + 1)];
-            let weights = [(1.0 - fy) * weight_per_step, fy * weight_per_step];
-            let out_row = &mut out[y * width..(y + 1) * width];
-            for (row, row_weight) in rows.into_iter().zip(weights) {
-                let line = &source[row * width..(row + 1) * width];
-                let (wa, wb) = (row_weight * (1.0 - fx), row_weight * fx);
-                if hi > lo {
-                    let start = (lo as isize + ix) as usize;
-                    let (a, b) = (
-                        &line[start..start + (hi - lo)],
-                        &line[start + 1..start + 1 + (hi - lo)],
-                    );
-                    for ((o, &va), &vb) in out_row[lo..hi].iter_mut().zip(a).zip(b) {
-                        *o += wa * va + wb * vb;
-                    }
-                }
-                // The few columns at the edges, clamped.
-                for x in (0..lo).chain(hi..width) {
-                    let xs = x as isize + ix;
-                    let (va, vb) = (
-                        line[xs.clamp(0, last) as usize],
-                        line[(xs + 1).clamp(0, last) as usize],
-                    );
-                    out_row[x] += wa * va + wb * vb;
-                }
+        let (x, y) = (s * cos, s * sin);
+        let (ix, iy) = (x.floor() as isize, y.floor() as isize);
+        let (fx, fy) = ((x - ix as f64) as f32, (y - iy as f64) as f32);
+        for (dx, dy, weight) in [
+            (ix, iy, (1.0 - fx) * (1.0 - fy)),
+            (ix + 1, iy, fx * (1.0 - fy)),
+            (ix, iy + 1, (1.0 - fx) * fy),
+            (ix + 1, iy + 1, fx * fy),
+        ] {
+            let weight = weight * weight_per_step;
+            if weight == 0.0 {
+                continue;
+            }
+            match taps.iter_mut().find(|t| t.dx == dx && t.dy == dy) {
+                Some(tap) => tap.weight += weight,
+                None => taps.push(BlurTap { dx, dy, weight }),
             }
         }
     }
-    out
+    taps
+}
+
+/// The developed rows from `first_row` into `out`.
+fn develop_rows(
+    clean: &[f32],
+    width: usize,
+    height: usize,
+    taps: &[BlurTap],
+    effects: &ImageEffects,
+    first_row: usize,
+    out: &mut [u8],
+) {
+    let contrast = effects.contrast as f32 * 255.0;
+    let offset = (0.5 - 0.5 * effects.contrast as f32 + effects.brightness as f32) * 255.0;
+    let noise_sigma = effects.noise_sigma as f32 / std::f32::consts::SQRT_2;
+    let table = noise_table();
+    let mut line = vec![0f32; width];
+    let zeros = vec![0f32; width];
+    for (chunk_row, out_row) in out.chunks_exact_mut(width).enumerate() {
+        let y = first_row + chunk_row;
+        if taps.is_empty() {
+            line.copy_from_slice(&clean[y * width..(y + 1) * width]);
+        } else {
+            blur_row(clean, width, height, taps, y, &mut line);
+        }
+        // Each row's noise is the sum of two windows of the table at offsets drawn for this
+        // frame and row: the same pattern again needs both offsets to coincide.
+        let mut rng = SplitMix64::new(
+            effects.noise_seed ^ (y as u64 + 1).wrapping_mul(0xd1b5_4a32_d192_ed03),
+        );
+        let windows = table.len().saturating_sub(width).max(1) as u64;
+        let (a, b) = (
+            (rng.next_u64() % windows) as usize,
+            (rng.next_u64() % windows) as usize,
+        );
+        let (noise_a, noise_b) = if noise_sigma > 0.0 && table.len() >= width {
+            (&table[a..a + width], &table[b..b + width])
+        } else {
+            (&zeros[..], &zeros[..])
+        };
+        for (((pixel, &level), &na), &nb) in out_row.iter_mut().zip(&line).zip(noise_a).zip(noise_b)
+        {
+            let level = contrast * level + offset + noise_sigma * (na + nb);
+            *pixel = (level.clamp(0.0, 255.0) + 0.5) as u8;
+        }
+    }
+}
+
+/// 64 Ki samples of unit Gaussian noise, drawn once: the camera's sensor noise is read from it.
+fn noise_table() -> &'static [f32] {
+    static TABLE: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let mut rng = SplitMix64::new(0x006e_6f69_7365);
+        (0..1 << 16).map(|_| rng.next_gaussian() as f32).collect()
+    })
+}
+
+/// Row `y` of the motion-blurred image: each tap adds a shifted source row, edges clamped.
+fn blur_row(
+    source: &[f32],
+    width: usize,
+    height: usize,
+    taps: &[BlurTap],
+    y: usize,
+    line: &mut [f32],
+) {
+    line.fill(0.0);
+    let last = width as isize - 1;
+    for tap in taps {
+        let row = (y as isize + tap.dy).clamp(0, height as isize - 1) as usize;
+        let source_row = &source[row * width..(row + 1) * width];
+        let dx = tap.dx;
+        // Output columns whose source column x + dx lies on the image.
+        let lo = (-dx).clamp(0, width as isize) as usize;
+        let hi = (width as isize - dx).clamp(lo as isize, width as isize) as usize;
+        if hi > lo {
+            let start = (lo as isize + dx) as usize;
+            for (o, &v) in line[lo..hi]
+                .iter_mut()
+                .zip(&source_row[start..start + (hi - lo)])
+            {
+                *o += tap.weight * v;
+            }
+        }
+        // The few columns at the edges, clamped.
+        for x in (0..lo).chain(hi..width) {
+            line[x] += tap.weight * source_row[(x as isize + dx).clamp(0, last) as usize];
+        }
+    }
 }
 
 #[cfg(test)]
@@ -891,7 +1083,18 @@ mod tests {
                 brightness: -0.05,
                 ..Default::default()
             };
-            let fast = post_process(&image, &effects).unwrap();
+            let clean: Vec<f32> = image.data().iter().map(|&p| p as f32 / 255.0).collect();
+            let fast = post_process(&clean, 80, 60, &effects, 1).unwrap();
+            // In bands on threads, noise included: the same frame.
+            let noisy = ImageEffects {
+                noise_sigma: 3.0,
+                noise_seed: 7,
+                ..effects
+            };
+            assert_eq!(
+                post_process(&clean, 80, 60, &noisy, 3).unwrap(),
+                post_process(&clean, 80, 60, &noisy, 1).unwrap()
+            );
             let reference = algorithms::vision::render::apply_effects(&image, &effects).unwrap();
             let worst = fast
                 .data()
@@ -927,14 +1130,36 @@ mod tests {
             body_rates_rad_s: Vector3::new(0.2, -0.1, 0.05),
         };
         let frames = 30;
-        let started = std::time::Instant::now();
-        for k in 0..frames {
+        // The fastest of many captures: this VM's timings are noisy.
+        let mut best_ms = f64::INFINITY;
+        for k in 0..frames * 3 {
+            let started = std::time::Instant::now();
             camera
                 .capture_frame(k as f64 * 0.1, &vehicle, &scene)
                 .unwrap();
+            best_ms = best_ms.min(started.elapsed().as_secs_f64() * 1000.0);
         }
-        let per_frame_ms = started.elapsed().as_secs_f64() * 1000.0 / frames as f64;
-        println!("one 640×480 capture: {per_frame_ms:.2} ms");
+        println!(
+            "one 640×480 capture, fastest of {}: {best_ms:.2} ms",
+            frames * 3
+        );
+        let mut single = SimCamera::new(
+            SimCameraConfig {
+                render_threads: 1,
+                ..SimCameraConfig::default()
+            },
+            1,
+        )
+        .unwrap();
+        let mut best_ms = f64::INFINITY;
+        for k in 0..frames * 3 {
+            let started = std::time::Instant::now();
+            single
+                .capture_frame(k as f64 * 0.1, &vehicle, &scene)
+                .unwrap();
+            best_ms = best_ms.min(started.elapsed().as_secs_f64() * 1000.0);
+        }
+        println!("on one thread: {best_ms:.2} ms");
         // Where the time goes: the ray casting alone, then each effect on its own.
         let pose = SimCamera::pose(&vehicle.position_ned_m, &vehicle.attitude);
         let visible = scene.visible_scene(camera.model(), &pose).unwrap();
@@ -982,9 +1207,11 @@ mod tests {
             },
         )
         .unwrap();
+        let clean: Vec<f32> = clean.data().iter().map(|&p| p as f32 / 255.0).collect();
+        let (width, height) = (camera.model().width_px, camera.model().height_px);
         let started = std::time::Instant::now();
         for _ in 0..frames {
-            post_process(&clean, &effects).unwrap();
+            post_process(&clean, width, height, &effects, 1).unwrap();
         }
         let ms = started.elapsed().as_secs_f64() * 1000.0 / frames as f64;
         println!("the camera's effects ({effects:?}): {ms:.2} ms");

@@ -673,7 +673,7 @@ pub const FIELD_TEXEL_M: f64 = 0.02;
 pub const FIELD_BAKED_HALF_EXTENT_M: f64 = 300.0;
 
 /// Texels a tile side; a tile is baked on the first sample that falls in it.
-const TILE_TEXELS: usize = 128;
+const TILE_TEXELS: usize = 64;
 
 /// A ground texture sampled on a grid of tiles, each computed once on first use and bilinearly
 /// interpolated: a few nanoseconds a sample whatever the source costs, and memory only for the
@@ -692,11 +692,49 @@ struct BakedTexture {
 
 impl BakedTexture {
     fn sample(&self, north_m: f64, east_m: f64) -> f32 {
+        match self.locate(north_m, east_m) {
+            Some(texel) => self.interpolate(self.tile(texel.tile), &texel),
+            None => self.source.sample(north_m, east_m),
+        }
+    }
+
+    /// [`Self::sample`] at every point: a run of points in one tile looks the tile up once,
+    /// and points inside the baked square (nearly all) take a short path with no wrapping.
+    fn sample_many(&self, points: &[[f64; 2]], out: &mut [f32]) {
+        let stride = TILE_TEXELS + 1;
+        let limit = self.limit_texels;
+        let [origin_n, origin_e] = self.origin_m;
+        let mut cached: (usize, &[f32]) = (usize::MAX, &[]);
+        for (&[north_m, east_m], value) in points.iter().zip(out) {
+            let gn = (north_m - origin_n) * self.texels_per_m;
+            let ge = (east_m - origin_e) * self.texels_per_m;
+            // False for NaN too.
+            if !(gn >= 0.0 && gn < limit && ge >= 0.0 && ge < limit) {
+                *value = self.sample(north_m, east_m);
+                continue;
+            }
+            let (in_, ie) = (gn as u32 as usize, ge as u32 as usize);
+            let index = (in_ / TILE_TEXELS) * self.tiles_per_side + ie / TILE_TEXELS;
+            if index != cached.0 {
+                cached = (index, self.tile(index));
+            }
+            let offset = (in_ % TILE_TEXELS) * stride + ie % TILE_TEXELS;
+            let q = &cached.1[offset..offset + stride + 2];
+            let (fraction_n, fraction_e) = ((gn - in_ as f64) as f32, (ge - ie as f64) as f32);
+            let top = q[0] + (q[1] - q[0]) * fraction_e;
+            let bottom = q[stride] + (q[stride + 1] - q[stride]) * fraction_e;
+            *value = top + (bottom - top) * fraction_n;
+        }
+    }
+
+    /// Where a point falls: its tile, the texel's offset in the tile, and the fractions
+    /// between texels; `None` off the grid (not finite), where the source is sampled itself.
+    fn locate(&self, north_m: f64, east_m: f64) -> Option<Texel> {
         let gn = (north_m - self.origin_m[0]) * self.texels_per_m;
         let ge = (east_m - self.origin_m[1]) * self.texels_per_m;
         let limit = self.limit_texels;
         if !(gn.is_finite() && ge.is_finite()) {
-            return self.source.sample(north_m, east_m);
+            return None;
         }
         // Beyond the baked square the field repeats: a tractor drives kilometres in a long
         // mission, and computing the field there would cost the renderer half its speed.
@@ -711,25 +749,35 @@ impl BakedTexture {
         };
         let (gn, ge) = (wrap(gn), wrap(ge));
         if !(gn < limit && ge < limit) {
-            return self.source.sample(north_m, east_m);
+            return None;
         }
         // In range and not negative: truncation is ⌊·⌋, and u32 conversions are cheap.
         let (in_, ie) = (gn as u32 as usize, ge as u32 as usize);
-        let (fn_, fe) = ((gn - in_ as f64) as f32, (ge - ie as f64) as f32);
         let (tn, te) = (in_ / TILE_TEXELS, ie / TILE_TEXELS);
-        let Some(cell) = self.tiles.get(tn * self.tiles_per_side + te) else {
-            return self.source.sample(north_m, east_m);
-        };
-        let tile = cell.get_or_init(|| self.bake(tn, te));
+        let tile = tn * self.tiles_per_side + te;
+        (tile < self.tiles.len()).then(|| Texel {
+            tile,
+            offset: (in_ % TILE_TEXELS) * (TILE_TEXELS + 1) + ie % TILE_TEXELS,
+            fraction_n: (gn - in_ as f64) as f32,
+            fraction_e: (ge - ie as f64) as f32,
+        })
+    }
+
+    /// A tile's values, baked on first use.
+    fn tile(&self, index: usize) -> &[f32] {
+        let (tile_n, tile_e) = (index / self.tiles_per_side, index % self.tiles_per_side);
+        self.tiles[index].get_or_init(|| self.bake(tile_n, tile_e))
+    }
+
+    fn interpolate(&self, tile: &[f32], texel: &Texel) -> f32 {
         let stride = TILE_TEXELS + 1;
-        let i = (in_ % TILE_TEXELS) * stride + ie % TILE_TEXELS;
-        // One slice of the two rows the interpolation needs: one bounds check, not four.
-        let Some(q) = tile.get(i..i + stride + 2) else {
-            return self.source.sample(north_m, east_m);
-        };
+        // The offset is at most (TILE_TEXELS − 1)·(stride + 1), so the two rows the
+        // interpolation needs are in the tile.
+        let q = &tile[texel.offset..texel.offset + stride + 2];
+        let fe = texel.fraction_e;
         let top = q[0] + (q[1] - q[0]) * fe;
         let bottom = q[stride] + (q[stride + 1] - q[stride]) * fe;
-        top + (bottom - top) * fn_
+        top + (bottom - top) * texel.fraction_n
     }
 
     fn bake(&self, tile_n: usize, tile_e: usize) -> Box<[f32]> {
@@ -744,6 +792,14 @@ impl BakedTexture {
         }
         values.into_boxed_slice()
     }
+}
+
+/// A point's place on the baked grid.
+struct Texel {
+    tile: usize,
+    offset: usize,
+    fraction_n: f32,
+    fraction_e: f32,
 }
 
 /// `source` (a function of world north, east) baked lazily on a grid of `texel_m` texels over
@@ -767,7 +823,11 @@ pub fn baked_texture(source: Texture, texel_m: f64, half_extent_m: f64) -> Textu
             .map(|_| OnceLock::new())
             .collect(),
     });
-    Texture::from_fn(move |north_m, east_m| baked.sample(north_m, east_m))
+    let many = Arc::clone(&baked);
+    Texture::from_fns(
+        move |north_m, east_m| baked.sample(north_m, east_m),
+        move |points, out| many.sample_many(points, out),
+    )
 }
 
 /// The circle (north, east, radius) around where the image's corners meet the plane
@@ -1087,6 +1147,21 @@ mod tests {
         }
         // A non-finite coordinate is the source's business, not a panic.
         let _ = baked.sample(f64::NAN, 0.0);
+        // Many points at once (runs within a tile, jumps between tiles, the periodic copies,
+        // a point off the grid) give what one point at a time gives.
+        let mut points: Vec<[f64; 2]> = (0..300)
+            .map(|k| [k as f64 * 0.031 - 4.0, (k % 17) as f64 * 0.9 - 7.0])
+            .collect();
+        points.extend([[50.0, -70.0], [f64::INFINITY, 1.0], [3.3, 1.7]]);
+        let mut many = vec![0f32; points.len()];
+        baked.sample_many(&points, &mut many);
+        for (&[n, e], value) in points.iter().zip(&many) {
+            let one = baked.sample(n, e);
+            assert!(
+                one == *value || (one.is_nan() && value.is_nan()),
+                "({n}, {e}): {value} at once, {one} alone"
+            );
+        }
     }
 
     #[test]

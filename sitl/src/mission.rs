@@ -26,7 +26,7 @@ use runtime::topics::{
 };
 use sim::autopilot::MavlinkAutopilot;
 use sim::autopilot::StreamRates;
-use sim::camera::{SimCamera, SimCameraConfig, VehiclePose};
+use sim::camera::{PendingFrame, SimCamera, SimCameraConfig, VehiclePose};
 use sim::estimate::EstimatedTelemetry;
 use sim::outcome::{LocalisationAccumulator, QosChange, SimOutcome, TrackSample};
 use sim::power::{RotorPowerModel, SimBattery, SimPack};
@@ -216,7 +216,8 @@ pub fn simulate(
     let camera_period_s = 1.0 / camera_config.rate_fps;
     // Frames reach the runtime after their capture-to-delivery latency, stamped with their
     // capture time, in order.
-    let mut in_transit: std::collections::VecDeque<(f64, CapturedFrame)> =
+    // (delivery time, capture time on the runtime's clock, the frame being rendered)
+    let mut in_transit: std::collections::VecDeque<(f64, f64, PendingFrame)> =
         std::collections::VecDeque::new();
     let mut latency_rng = SplitMix64::new(options.seed ^ 0x006c_6174_656e_6379);
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
@@ -395,7 +396,8 @@ pub fn simulate(
                     velocity_ned_m_s: vehicle.velocity_ned_m_s(),
                     body_rates_rad_s: vehicle.body_rates_rad_s(),
                 };
-                match camera.capture_frame(time_s, &pose, &scene) {
+                // Rendered on other threads during the frame's latency; the loop goes on.
+                match camera.capture_deferred(time_s, &pose, &scene) {
                     Ok(frame) => {
                         let frame_index = frame.frame_index;
                         let c = &realism.camera;
@@ -404,17 +406,8 @@ pub fn simulate(
                         // Not before the frame ahead of it: a camera delivers in order.
                         let deliver_s = in_transit
                             .back()
-                            .map_or(time_s + latency_s, |(s, _)| s.max(time_s + latency_s));
-                        in_transit.push_back((
-                            deliver_s,
-                            CapturedFrame {
-                                frame: CameraFrame {
-                                    frame_index,
-                                    image: frame.image,
-                                },
-                                capture_time_s: runtime_now_s,
-                            },
-                        ));
+                            .map_or(time_s + latency_s, |(s, _, _)| s.max(time_s + latency_s));
+                        in_transit.push_back((deliver_s, runtime_now_s, frame));
                         if let Some((stereo, depth_frames)) = stereo.as_mut() {
                             match stereo.capture(
                                 frame_index,
@@ -444,10 +437,19 @@ pub fn simulate(
 
         while in_transit
             .front()
-            .is_some_and(|(deliver_s, _)| *deliver_s <= time_s + 1e-9)
+            .is_some_and(|(deliver_s, _, _)| *deliver_s <= time_s + 1e-9)
         {
-            if let Some((_, frame)) = in_transit.pop_front() {
-                frames.push(frame);
+            if let Some((_, capture_time_s, frame)) = in_transit.pop_front() {
+                match frame.wait() {
+                    Ok(frame) => frames.push(CapturedFrame {
+                        frame: CameraFrame {
+                            frame_index: frame.frame_index,
+                            image: frame.image,
+                        },
+                        capture_time_s,
+                    }),
+                    Err(error) => events.push((time_s, format!("camera: {error}"))),
+                }
             }
         }
 

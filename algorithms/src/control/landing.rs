@@ -310,6 +310,10 @@ pub struct LandingInput {
     /// is usable: Reacquire flies towards it rather than only matching the platform's speed,
     /// so a vehicle left behind (a link loss, a blind camera) catches up.
     pub predicted_uav_minus_pad_ne_m: Option<Vector2<f64>>,
+    /// The autopilot is flying these setpoints (PX4 OFFBOARD, ArduPilot GUIDED) on fresh
+    /// telemetry. Only then does the wind feed-forward learn from the gap between what was
+    /// commanded and what was flown: a vehicle held by a failsafe or a pilot is not wind.
+    pub setpoints_followed: bool,
 }
 
 /// One step's output.
@@ -510,7 +514,16 @@ impl Machine {
             self.platform_accel_ne_m_s2 += alpha * (raw - self.platform_accel_ne_m_s2);
         }
         self.previous_platform_velocity_ne_m_s = Some(input.platform_velocity_ne_m_s);
-        if let (Some(previous_s), Some(command)) = (self.last_time_s, self.last_command_ne_m_s) {
+        if !input.setpoints_followed {
+            // Nor do the PID's integral and the wind estimate mean anything while nobody flies
+            // the commands: they restart when the autopilot takes them again.
+            self.velocity_shortfall_ne_m_s = Vector2::zeros();
+            self.expected_velocity_ne_m_s = None;
+            self.pid.reset();
+            self.last_pid_time_s = None;
+        } else if let (Some(previous_s), Some(command)) =
+            (self.last_time_s, self.last_command_ne_m_s)
+        {
             if c.wind_compensation_tau_s > 0.0 {
                 let dt_s = time_s - previous_s;
                 let lag = dt_s / (c.autopilot_velocity_tau_s + dt_s);
@@ -779,6 +792,7 @@ mod tests {
             uav_velocity_ne_m_s: Vector2::new(3.0, 0.0),
             descent_allowed: true,
             predicted_uav_minus_pad_ne_m: None,
+            setpoints_followed: true,
         }
     }
 
@@ -850,6 +864,52 @@ mod tests {
             "without: {without}"
         );
         assert!(with < 0.05, "with the feed-forward still {with} m/s off");
+    }
+
+    /// A vehicle held still by its autopilot (a failsafe, a pilot) while the guidance asks for
+    /// 2 m/s: told its setpoints are not flown, the controller learns no wind, and once they
+    /// are flown again it asks for what it would ask of a vehicle that had never been held.
+    #[test]
+    fn no_wind_is_learned_while_the_setpoints_are_not_flown() {
+        let config = LandingConfig {
+            wind_compensation_tau_s: 1.0,
+            ..LandingConfig::default()
+        };
+        let platform = Vector2::new(2.0, 0.0);
+        let step = |c: &mut LandingController, t_s: f64, followed: bool| {
+            c.step(&LandingInput {
+                uav_velocity_ne_m_s: Vector2::zeros(),
+                platform_velocity_ne_m_s: platform,
+                setpoints_followed: followed,
+                ..input(t_s, fix_at(0.0, 0.0, 7.5), 7.5)
+            })
+            .unwrap()
+            .velocity_setpoint_ned_m_s
+            .xy()
+        };
+        let mut held = LandingController::new(config).unwrap();
+        for k in 1..=200 {
+            step(&mut held, k as f64 * DT_S, false);
+        }
+        let after_hold = step(&mut held, 201.0 * DT_S, true);
+        let mut fresh = LandingController::new(config).unwrap();
+        let first = step(&mut fresh, 201.0 * DT_S, true);
+        // (One step of learning apart: the first step flown after the hold.)
+        assert!(
+            (after_hold - first).norm() < 0.05,
+            "{after_hold} after the hold, {first} fresh"
+        );
+        // Whereas a vehicle that does not move although it flies the setpoints is short of
+        // them: that is learned as wind.
+        let mut short = LandingController::new(config).unwrap();
+        for k in 1..=200 {
+            step(&mut short, k as f64 * DT_S, true);
+        }
+        let compensated = step(&mut short, 201.0 * DT_S, true);
+        assert!(
+            (compensated - first).norm() > 1.0,
+            "{compensated} vs {first}"
+        );
     }
 
     #[test]

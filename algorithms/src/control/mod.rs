@@ -106,6 +106,7 @@ pub(crate) mod closed_loop_tests {
                         uav_velocity_ne_m_s: vehicle.velocity_ned_m_s.xy(),
                         descent_allowed: true,
                         predicted_uav_minus_pad_ne_m: None,
+                        setpoints_followed: true,
                     })
                     .unwrap();
                 if out.land_command && committed_at_s.is_nan() {

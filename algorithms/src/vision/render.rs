@@ -64,7 +64,12 @@ pub enum RenderError {
 #[derive(Clone)]
 pub struct Texture {
     f: Arc<dyn Fn(f64, f64) -> f32 + Send + Sync>,
+    /// The same function over many points at once, where the texture has a faster way than
+    /// one call per point (a baked texture looks its tile up once per run of points).
+    many: Option<ManyFn>,
 }
+
+type ManyFn = Arc<dyn Fn(&[[f64; 2]], &mut [f32]) + Send + Sync>;
 
 impl fmt::Debug for Texture {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -75,7 +80,22 @@ impl fmt::Debug for Texture {
 impl Texture {
     /// Any function of the two coordinates; values outside [0, 1] are clamped when the image is made.
     pub fn from_fn(f: impl Fn(f64, f64) -> f32 + Send + Sync + 'static) -> Self {
-        Self { f: Arc::new(f) }
+        Self {
+            f: Arc::new(f),
+            many: None,
+        }
+    }
+
+    /// As [`Self::from_fn`], with `many(points, out)` giving the same values as `one` at every
+    /// point, faster.
+    pub fn from_fns(
+        one: impl Fn(f64, f64) -> f32 + Send + Sync + 'static,
+        many: impl Fn(&[[f64; 2]], &mut [f32]) + Send + Sync + 'static,
+    ) -> Self {
+        Self {
+            f: Arc::new(one),
+            many: Some(Arc::new(many)),
+        }
     }
 
     /// One intensity everywhere.
@@ -86,6 +106,18 @@ impl Texture {
     /// The intensity at (a, b).
     pub fn sample(&self, a: f64, b: f64) -> f32 {
         (self.f)(a, b)
+    }
+
+    /// The intensity at each point, into `out` (as long as `points`).
+    pub fn sample_many(&self, points: &[[f64; 2]], out: &mut [f32]) {
+        match &self.many {
+            Some(many) => many(points, out),
+            None => {
+                for (&[a, b], value) in points.iter().zip(out) {
+                    *value = (self.f)(a, b);
+                }
+            }
+        }
     }
 
     /// The n-fold marker of order `order` on the unit disc of the patch, white outside it: a point at
@@ -367,6 +399,9 @@ struct PreparedPatch<'a> {
     /// coordinates, so rays that cannot meet it skip it; infinite when the patch reaches behind
     /// the camera (its image is then not the hull of its corners).
     bounds: [f64; 4],
+    /// The corners' normalised coordinates, in order round the patch; `None` when one is at
+    /// or behind the camera.
+    corners: Option<[[f64; 2]; 4]>,
     centre: [f64; 2],
     eu: [f64; 2],
     ev: [f64; 2],
@@ -442,6 +477,16 @@ pub fn render_rows(
     };
 
     let mut candidates: Vec<&PreparedPatch<'_>> = Vec::with_capacity(prepared.len());
+    // Without distortion, the columns whose samples may meet one of the row's patches; the
+    // others (most of a frame: the ground) skip the patch tests, which they would all fail.
+    let mut may_meet_patch = vec![!undistorted; width];
+    let ground_height_m = scene.ground_down_m - origin.z;
+    // The fast path's row buffers, and each column's normalised x (the same in every row).
+    let mut ground_points = vec![[0f64; 2]; width];
+    let mut ground_values = vec![0f32; width];
+    let column_x: Vec<f64> = (0..width)
+        .map(|col| (col as f64 - camera.cx_px) / camera.fx_px)
+        .collect();
     for (chunk_row, row_out) in out.chunks_exact_mut(width).enumerate() {
         let row = first_row + chunk_row;
         // Without distortion a row's samples share their normalised y: only the patches that
@@ -456,7 +501,73 @@ pub fn render_rows(
                 .iter()
                 .filter(|p| !undistorted || (p.bounds[2] <= row_y1 && p.bounds[3] >= row_y0)),
         );
+        if undistorted {
+            may_meet_patch.fill(false);
+            for p in &candidates {
+                // Columns whose first or last sample's x can fall within the patch's bounds
+                // (an infinite bound saturates the conversion to the image's edge).
+                // With one sample per pixel, the row's own span of the patch's image (a convex
+                // quadrilateral) is narrower than its bounds when the patch is turned.
+                let (x0, x1) = match (ss, &p.corners) {
+                    (1, Some(corners)) => match row_span(corners, row_y0) {
+                        Some(span) => span,
+                        None => continue,
+                    },
+                    _ => (p.bounds[0], p.bounds[1]),
+                };
+                let first = ((x0 * camera.fx_px + camera.cx_px - offsets[ss - 1]).floor() - 1.0)
+                    .clamp(0.0, width as f64) as usize;
+                let last = ((x1 * camera.fx_px + camera.cx_px - offsets[0]).ceil() + 1.0)
+                    .clamp(0.0, width as f64) as usize;
+                if first < last {
+                    may_meet_patch[first..last].fill(true);
+                }
+            }
+        }
+        // One sample per pixel without distortion: every pixel's ray meets the ground at a
+        // point that is a plain function of its column (ray(x) = c0 + x·c1 in the row), so the
+        // row's ground points are computed and the background sampled at them in one pass each,
+        // and only the pixels that may see a patch take the path below.
+        let fast_row = undistorted && ss == 1;
+        if fast_row {
+            let y_row = (row as f64 - camera.cy_px) / camera.fy_px;
+            let c0 = [
+                r[(0, 1)] * y_row + r[(0, 2)],
+                r[(1, 1)] * y_row + r[(1, 2)],
+                r[(2, 1)] * y_row + r[(2, 2)],
+            ];
+            let c1 = [r[(0, 0)], r[(1, 0)], r[(2, 0)]];
+            for (point, &x) in ground_points.iter_mut().zip(&column_x) {
+                let ray_z = c0[2] + x * c1[2];
+                let t = ground_height_m / ray_z;
+                *point = if ray_z.abs() > 1e-12 && t > 0.0 {
+                    [
+                        origin.x + (c0[0] + x * c1[0]) * t,
+                        origin.y + (c0[1] + x * c1[1]) * t,
+                    ]
+                } else {
+                    [f64::NAN; 2]
+                };
+            }
+            scene
+                .background
+                .sample_many(&ground_points, &mut ground_values);
+        }
         for (col, out) in row_out.iter_mut().enumerate() {
+            if fast_row && !may_meet_patch[col] {
+                *out = if ground_points[col][0].is_nan() {
+                    scene.sky
+                } else {
+                    ground_values[col]
+                }
+                .clamp(0.0, 1.0);
+                continue;
+            }
+            let candidates: &[&PreparedPatch<'_>] = if may_meet_patch[col] {
+                &candidates
+            } else {
+                &[]
+            };
             let mut sum = 0f32;
             // The background is texture, not truth: it is sampled once per pixel, at the centroid
             // of the samples that see it, which makes supersampling cost little more than the
@@ -479,7 +590,7 @@ pub fn render_rows(
                         r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)],
                         r[(2, 0)] * x + r[(2, 1)] * y + r[(2, 2)],
                     );
-                    match shade(&candidates, x, y, ray) {
+                    match shade(candidates, x, y, ray) {
                         Ok(value) => sum += value.clamp(0.0, 1.0),
                         Err((n, e)) => {
                             ground_n += n;
@@ -525,6 +636,7 @@ fn prepare_patches<'a>(
         let (su, sv) = (2.0 / p.width_m, 2.0 / p.height_m);
         prepared.push(PreparedPatch {
             bounds: normalized_bounds(pose, p),
+            corners: normalized_corners(pose, p),
             centre: [p.north_m, p.east_m],
             eu: [eu[0] * su, eu[1] * su],
             ev: [ev[0] * sv, ev[1] * sv],
@@ -653,6 +765,49 @@ pub fn render_depth(
         }
     }
     Ok(DepthImage::from_vec(width, height, depth)?)
+}
+
+/// The normalised coordinates of a patch's corners seen from `pose`, round the patch; `None`
+/// when one is at or behind the camera.
+fn normalized_corners(pose: &CameraPose, patch: &Patch) -> Option<[[f64; 2]; 4]> {
+    let mut corners = [[0.0; 2]; 4];
+    for (corner, (u, v)) in
+        corners
+            .iter_mut()
+            .zip([(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)])
+    {
+        let c = pose.world_to_camera(&patch.point_world(u, v));
+        if c.z.is_nan() || c.z <= 1e-6 {
+            return None;
+        }
+        *corner = [c.x / c.z, c.y / c.z];
+    }
+    Some(corners)
+}
+
+/// Where the line at normalised y = `y` crosses the convex quadrilateral `corners`: its
+/// (x min, x max), widened by a hair for rounding; `None` when it misses.
+fn row_span(corners: &[[f64; 2]; 4], y: f64) -> Option<(f64, f64)> {
+    let (mut x_min, mut x_max) = (f64::INFINITY, f64::NEG_INFINITY);
+    for (i, a) in corners.iter().enumerate() {
+        let b = &corners[(i + 1) % 4];
+        let (low, high) = if a[1] <= b[1] { (a, b) } else { (b, a) };
+        if y < low[1] || y > high[1] {
+            continue;
+        }
+        let x = if high[1] - low[1] > 1e-15 {
+            low[0] + (y - low[1]) * (high[0] - low[0]) / (high[1] - low[1])
+        } else {
+            // A level edge on the line: both its ends.
+            x_min = x_min.min(low[0].min(high[0]));
+            x_max = x_max.max(low[0].max(high[0]));
+            continue;
+        };
+        x_min = x_min.min(x);
+        x_max = x_max.max(x);
+    }
+    let margin = 1e-9 * (1.0 + x_min.abs().max(x_max.abs()));
+    (x_min <= x_max).then_some((x_min - margin, x_max + margin))
 }
 
 /// The normalised-coordinate bounds of a patch seen from `pose` (see [`PreparedPatch::bounds`]),
@@ -1264,5 +1419,66 @@ mod tests {
         let spread = values.iter().cloned().fold(f32::MIN, f32::max)
             - values.iter().cloned().fold(f32::MAX, f32::min);
         assert!(spread > 0.2, "{spread}");
+    }
+
+    #[test]
+    fn every_pixel_off_the_patches_shows_the_ground_under_its_ray_or_the_sky() {
+        // A camera pitched up so the top rows see the sky, over a textured ground with one raised
+        // patch, its bounds cutting rows in two: each pixel is checked against the ground point
+        // of its own ray (`pixel_to_plane`, the camera's geometry, not the renderer's), whether
+        // the texture is sampled one point at a time or many at once.
+        let camera = PinholeCamera::from_fov(160, 120, 70f64.to_radians()).unwrap();
+        let pose = CameraPose::downward(Vector3::new(0.3, -0.2, -5.0), 0.1, 1.2, 0.4);
+        let ground = |n: f64, e: f64| (0.5 + 0.4 * (3.1 * n).sin() * (1.7 * e).cos()) as f32;
+        let centre = camera.pixel_to_plane(&pose, 80.0, 90.0, -0.5).unwrap();
+        let patch =
+            Patch::square(centre.x, centre.y, 0.2, 0.8, Texture::uniform(0.0)).at_down_m(-0.5);
+        for background in [
+            Texture::from_fn(ground),
+            Texture::from_fns(ground, move |points, out| {
+                for (&[n, e], value) in points.iter().zip(out) {
+                    *value = ground(n, e);
+                }
+            }),
+        ] {
+            let scene = Scene::new(background).with_patch(patch.clone());
+            let image = render(&camera, &pose, &scene, &exact()).unwrap();
+            let (mut sky, mut ground_px, mut patch_px) = (0, 0, 0);
+            for v in 0..120 {
+                for u in 0..160 {
+                    let got = image.get(u, v) as f32;
+                    let point = camera.pixel_to_plane(&pose, u as f64, v as f64, 0.0);
+                    let on_patch = camera
+                        .pixel_to_plane(&pose, u as f64, v as f64, -0.5)
+                        .is_some_and(|p| {
+                            let (dn, de) = (p.x - centre.x, p.y - centre.y);
+                            let (c, s) = (0.2f64.cos(), 0.2f64.sin());
+                            (dn * c + de * s).abs() < 0.4 && (-dn * s + de * c).abs() < 0.4
+                        });
+                    let expected = match point {
+                        _ if on_patch => {
+                            patch_px += 1;
+                            0.0
+                        }
+                        Some(p) => {
+                            ground_px += 1;
+                            ground(p.x, p.y) * 255.0
+                        }
+                        None => {
+                            sky += 1;
+                            scene.sky * 255.0
+                        }
+                    };
+                    assert!(
+                        (got - expected).abs() <= 1.0,
+                        "({u}, {v}): {got} vs {expected}"
+                    );
+                }
+            }
+            assert!(
+                sky > 1000 && ground_px > 1000 && patch_px > 50,
+                "{sky} {ground_px} {patch_px}"
+            );
+        }
     }
 }

@@ -423,6 +423,9 @@ impl TelemetryState {
             height_above_pad_m,
             position_ned_m: Some(position),
             landed: self.landed,
+            offboard: self
+                .autopilot
+                .is_some_and(|status| status.mode == AutopilotMode::Offboard),
         })
     }
 
@@ -994,6 +997,17 @@ mod tests {
         assert!(state.vehicle_state(1.0).unwrap().landed);
         state.apply(&landed(MavLandedState::MAV_LANDED_STATE_IN_AIR), 1.0);
         assert!(!state.vehicle_state(1.0).unwrap().landed);
+        // Offboard as the last heartbeat says: not before one, then PX4 OFFBOARD, then a
+        // pilot's switch to POSCTL.
+        assert!(!state.vehicle_state(1.0).unwrap().offboard);
+        let custom = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
+        for (mode, offboard) in [(0x0006_0000, true), (0x0003_0000, false)] {
+            state.apply(
+                &MavMessage::HEARTBEAT(heartbeat(MavAutopilot::MAV_AUTOPILOT_PX4, custom, mode)),
+                1.0,
+            );
+            assert_eq!(state.vehicle_state(1.0).unwrap().offboard, offboard);
+        }
     }
 
     #[test]

@@ -610,6 +610,7 @@ mod tests {
             height_above_pad_m: 9.0,
             position_ned_m: Some(Vector3::new(5.0, -3.0, -10.0)),
             landed: false,
+            offboard: true,
         };
         let (cx, cy) = (camera.cx_px, camera.cy_px);
         let below = ground_position_ned_m(&camera, &vehicle, cx, cy).unwrap();
@@ -651,6 +652,7 @@ mod tests {
                     height_above_pad_m: height_m,
                     position_ned_m: Some(Vector3::new(0.0, 0.0, -height_m)),
                     landed: false,
+                    offboard: true,
                 },
             );
             frames.publish(

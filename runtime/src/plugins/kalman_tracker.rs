@@ -61,6 +61,9 @@ pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
     super::register_builtin(registry, PLUGIN_NAME, TrackerTask::new)
 }
 
+/// Vehicle telemetry older than this is stale (the autopilot streams it at 10 Hz or more).
+const MAX_STATE_AGE_S: f64 = 0.5;
+
 struct TrackerTask {
     camera: PinholeCamera,
     fix_variance_m2: f64,
@@ -140,6 +143,7 @@ impl Task for TrackerTask {
             height_above_pad_m: state.height_above_pad_m,
         });
         let now_s = ctx.now().as_secs_f64();
+        let state_fresh = now_s - latest.stamp.as_secs_f64() <= MAX_STATE_AGE_S;
         let platform_velocity = self.platform.velocity().map(|p| p.velocity_ned_mps);
         if self.tracker.estimate().is_some() {
             let input = MotionInput {
@@ -199,12 +203,18 @@ impl Task for TrackerTask {
                                 | FixOutcome::Restarted { .. }
                         ) {
                             self.last_fix_time_s = Some(capture_time_s);
-                            let _ = self.platform.update(&PlatformFix {
-                                time_s: capture_time_s,
-                                uav_relative_ned_m: uav_relative,
-                                uav_velocity_ned_mps: state.velocity_ned_m_s,
-                                platform_yaw_rad: None,
-                            });
+                            // The platform's velocity is the vehicle's plus the fixes' drift:
+                            // on stale telemetry (a lost link) the vehicle's is not known, and
+                            // learning from the last one reported would fly the vehicle after
+                            // a platform that is not there once the link is back.
+                            if state_fresh {
+                                let _ = self.platform.update(&PlatformFix {
+                                    time_s: capture_time_s,
+                                    uav_relative_ned_m: uav_relative,
+                                    uav_velocity_ned_mps: state.velocity_ned_m_s,
+                                    platform_yaw_rad: None,
+                                });
+                            }
                         }
                     }
                     // A pixel above the horizon or a bad height: skip the fix, keep predicting.

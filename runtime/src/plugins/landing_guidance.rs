@@ -195,10 +195,15 @@ impl Task for GuidanceTask {
         ) else {
             return Err(TaskError::failed("stepped before start"));
         };
-        let Some(state) = vehicle.latest().map(|m| m.value) else {
+        let Some(state_message) = vehicle.latest() else {
             return Ok(());
         };
+        let state = state_message.value;
         let now_s = ctx.now().as_secs_f64();
+        // Setpoints are flown while the autopilot is in offboard and still reporting (a lost
+        // link leaves the last state standing).
+        let setpoints_followed =
+            state.offboard && now_s - state_message.stamp.as_secs_f64() <= self.max_fix_age_s;
         let latest = relative.latest().map(|m| m.value);
         let fresh = latest.filter(|r| now_s - r.estimate.time_s <= self.max_fix_age_s);
         let fix = fresh
@@ -229,6 +234,7 @@ impl Task for GuidanceTask {
             uav_velocity_ne_m_s: state.velocity_ned_m_s.xy(),
             descent_allowed,
             predicted_uav_minus_pad_ne_m: fresh.map(|r| r.estimate.uav_relative_ned_m.xy()),
+            setpoints_followed,
         });
         match step {
             Ok(out) => {

@@ -136,6 +136,7 @@ mod tests {
                 height_above_pad_m: HEIGHT_M,
                 position_ned_m: Some(Vector3::new(0.0, 0.0, -HEIGHT_M)),
                 landed: false,
+                offboard: true,
             };
             self.state.as_ref().unwrap().publish(ctx.now(), state);
             let frame = CameraFrame {
