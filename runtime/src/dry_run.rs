@@ -128,7 +128,11 @@ pub fn dry_run(
         if now >= next_frame {
             let image = frames[frame_index as usize % frames.len()].clone();
             camera.push(CapturedFrame {
-                frame: CameraFrame { frame_index, image },
+                frame: CameraFrame {
+                    vehicle_at_capture: None,
+                    frame_index,
+                    image,
+                },
                 capture_time_s: now_s,
             });
             frame_index += 1;

@@ -490,6 +490,7 @@ impl Inputs for SyntheticInputs<'_> {
         self.camera.publish(
             at,
             CameraFrame {
+                vehicle_at_capture: None,
                 frame_index: self.published,
                 image,
             },

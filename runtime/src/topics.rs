@@ -16,6 +16,11 @@ pub struct CameraFrame {
     /// Counts frames from the source's start; gaps mean dropped frames.
     pub frame_index: u64,
     pub image: Arc<GrayImage>,
+    /// The vehicle's attitude, height and position when the frame was exposed, interpolated
+    /// from telemetry by the mission runner that publishes the frame (`None` from the camera
+    /// source itself, or before any telemetry): a task placing what it sees on the ground uses
+    /// this, not the vehicle as it is when the task gets round to the frame.
+    pub vehicle_at_capture: Option<algorithms::estimation::attitude_history::AttitudeSample>,
 }
 
 /// What the detector made of one frame.

@@ -443,6 +443,7 @@ pub fn simulate(
                 match frame.wait() {
                     Ok(frame) => frames.push(CapturedFrame {
                         frame: CameraFrame {
+                            vehicle_at_capture: None,
                             frame_index: frame.frame_index,
                             image: frame.image,
                         },

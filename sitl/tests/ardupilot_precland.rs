@@ -133,6 +133,7 @@ fn ardupilot_precision_landing_follows_the_trackers_landing_target() {
             if let Ok(frame) = camera.capture_frame(now_s, &pose, &scene) {
                 frames.push(CapturedFrame {
                     frame: CameraFrame {
+                        vehicle_at_capture: None,
                         frame_index: frame.frame_index,
                         image: frame.image,
                     },

@@ -1,4 +1,5 @@
-//! The vehicle's recent attitude and height, to look up at a camera frame's capture time.
+//! The vehicle's recent attitude, height and position, to look up at a camera frame's capture
+//! time.
 //!
 //! A fix is projected with the attitude the vehicle had when the frame was exposed, not the
 //! one it has when the detector gets round to the frame: a frame reaches the tracker 30–130 ms
@@ -8,6 +9,8 @@
 
 use std::collections::VecDeque;
 
+use nalgebra::Vector3;
+
 use super::projection::Attitude;
 
 /// One telemetry sample.
@@ -16,6 +19,8 @@ pub struct AttitudeSample {
     pub time_s: f64,
     pub attitude: Attitude,
     pub height_above_pad_m: f64,
+    /// Local NED position, when the autopilot reports one.
+    pub position_ned_m: Option<Vector3<f64>>,
 }
 
 /// A bounded window of samples in time order.
@@ -77,6 +82,16 @@ impl AttitudeHistory {
                 wrap_pi(a.attitude.yaw_rad + yaw_step * t),
             ),
             height_above_pad_m: lerp(a.height_above_pad_m, b.height_above_pad_m),
+            position_ned_m: match (a.position_ned_m, b.position_ned_m) {
+                (Some(p), Some(q)) => Some(p + (q - p) * t),
+                (p, q) => {
+                    if t < 0.5 {
+                        p
+                    } else {
+                        q
+                    }
+                }
+            },
         })
     }
 }
@@ -95,6 +110,7 @@ mod tests {
             time_s,
             attitude: Attitude::new(0.0, pitch_rad, yaw_rad),
             height_above_pad_m: height_m,
+            position_ned_m: Some(Vector3::new(time_s, -2.0 * time_s, -height_m)),
         }
     }
 
@@ -109,6 +125,12 @@ mod tests {
         let middle = history.at(10.005).unwrap();
         assert!((middle.attitude.pitch_rad - 0.025).abs() < 1e-12);
         assert!((middle.height_above_pad_m - 7.25).abs() < 1e-12);
+        // Position too: a quarter of the way from the one sample's to the next's.
+        let position = middle.position_ned_m.unwrap();
+        assert!(
+            (position - Vector3::new(10.005, -20.01, -7.25)).norm() < 1e-9,
+            "{position}"
+        );
         // Yaw goes the short way across ±π: 3.1 → −3.1 passes π, not 0.
         let yaw = middle.attitude.yaw_rad;
         let expected = 3.1 + 0.25 * (2.0 * std::f64::consts::PI - 6.2);

@@ -162,6 +162,7 @@ impl CameraSource for ImageFolderSource {
         let image = self.load(&path)?;
         Ok(Some(CapturedFrame {
             frame: CameraFrame {
+                vehicle_at_capture: None,
                 frame_index,
                 image: Arc::new(image),
             },

@@ -290,6 +290,7 @@ impl CameraSource for GstreamerSource {
         self.stats.delivered += 1;
         Ok(Some(CapturedFrame {
             frame: CameraFrame {
+                vehicle_at_capture: None,
                 frame_index: arrived.frame_index,
                 image: Arc::new(image),
             },

@@ -160,6 +160,7 @@ mod tests {
         for (index, capture_time_s) in [(0u64, 1.0), (1, 1.1)] {
             source.push(CapturedFrame {
                 frame: CameraFrame {
+                    vehicle_at_capture: None,
                     frame_index: index,
                     image: Arc::new(GrayImage::filled(4, 4, 0).unwrap()),
                 },

@@ -23,6 +23,7 @@ use crate::topics::{
     CameraFrame, LandingSetpoint, MissionPhase, RelativeState, VehicleState, CAMERA_FRAME,
     LANDING_SETPOINT, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
 };
+use algorithms::estimation::attitude_history::{AttitudeHistory, AttitudeSample};
 use power_models::planner::TaskLevel;
 use std::sync::Arc;
 use std::time::Duration;
@@ -41,6 +42,9 @@ pub const TELEMETRY_STREAMS: [(u32, f64); 7] = [
 ];
 /// The stream requests are sent this many times, this far apart, once the autopilot is heard
 /// (a request lost on a radio link is not fatal).
+/// How much vehicle history frames are matched against: a frame reaches the runner well
+/// within this of its exposure (a camera pipeline's latency is tens of milliseconds).
+const VEHICLE_HISTORY_S: f64 = 2.0;
 const STREAM_REQUESTS: u32 = 3;
 const STREAM_REQUEST_PERIOD_S: f64 = 5.0;
 
@@ -106,6 +110,8 @@ pub struct MissionRunner<S: TaskScheduler> {
     vehicle_topic: Publisher<VehicleState>,
     phase_topic: Publisher<MissionPhase>,
     frames: Publisher<CameraFrame>,
+    /// The vehicle's recent states, to hand each frame the one at its exposure.
+    vehicle_history: AttitudeHistory,
     setpoints: Subscriber<LandingSetpoint>,
     relative: Subscriber<RelativeState>,
     phase: Option<usize>,
@@ -136,6 +142,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             vehicle_topic: bus.publisher(VEHICLE_STATE)?,
             phase_topic: bus.publisher(MISSION_PHASE)?,
             frames: bus.publisher(CAMERA_FRAME)?,
+            vehicle_history: AttitudeHistory::new(VEHICLE_HISTORY_S),
             setpoints: bus.subscriber(LANDING_SETPOINT)?,
             relative: bus.subscriber(RELATIVE_STATE)?,
             model,
@@ -293,6 +300,12 @@ impl<S: TaskScheduler> MissionRunner<S> {
         let now_s = now.as_secs_f64();
         if let Some(state) = update.vehicle_state {
             self.vehicle_topic.publish(now, state);
+            self.vehicle_history.push(AttitudeSample {
+                time_s: now_s,
+                attitude: state.attitude,
+                height_above_pad_m: state.height_above_pad_m,
+                position_ned_m: state.position_ned_m,
+            });
         }
         if let Some(status) = update.autopilot {
             self.log.autopilot(now_s, &status);
@@ -340,8 +353,10 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 Ok(Some(captured)) => {
                     self.log.frames += 1;
                     let capture_s = captured.capture_time_s.min(now_s);
+                    let mut frame = captured.frame;
+                    frame.vehicle_at_capture = self.vehicle_history.at(capture_s);
                     self.frames
-                        .publish(Timestamp::from_secs_f64(capture_s.max(0.0)), captured.frame);
+                        .publish(Timestamp::from_secs_f64(capture_s.max(0.0)), frame);
                 }
                 Ok(None) => break,
                 Err(error @ CameraSourceError::Ended { .. }) => {

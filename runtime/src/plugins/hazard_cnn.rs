@@ -19,7 +19,7 @@ use crate::topics::{
     CameraFrame, HazardDetection, HazardReport, RelativeState, VehicleState, CAMERA_FRAME, HAZARDS,
     RELATIVE_STATE, VEHICLE_STATE,
 };
-use algorithms::estimation::projection::pad_relative_to_uav_ned_m;
+use algorithms::estimation::projection::{pad_relative_to_uav_ned_m, Attitude};
 use algorithms::vision::camera::PinholeCamera;
 use algorithms::vision::yolo::{
     decode, letterbox_gray, non_maximum_suppression, Detection, YoloFormat,
@@ -287,19 +287,20 @@ impl HazardCnnTask {
     }
 }
 
-/// Where the ground point seen at pixel (u, v) lies, local NED with down = 0 at the ground.
+/// Where the ground point seen at pixel (u, v) lies, local NED with down = 0 at the ground,
+/// from the vehicle's attitude and position when the frame was exposed.
 fn ground_position_ned_m(
     camera: &PinholeCamera,
-    vehicle: &VehicleState,
+    attitude: &Attitude,
+    position_ned_m: Option<Vector3<f64>>,
     u_px: f64,
     v_px: f64,
 ) -> Option<Vector3<f64>> {
-    let position = vehicle.position_ned_m?;
+    let position = position_ned_m?;
     // The field is flat and at the home point's level: the camera is −down above it.
     let height_above_ground_m = -position.z;
     let relative =
-        pad_relative_to_uav_ned_m(camera, &vehicle.attitude, height_above_ground_m, u_px, v_px)
-            .ok()?;
+        pad_relative_to_uav_ned_m(camera, attitude, height_above_ground_m, u_px, v_px).ok()?;
     Some(Vector3::new(
         position.x + relative.x,
         position.y + relative.y,
@@ -392,6 +393,14 @@ impl Task for HazardCnnTask {
             _ => None,
         };
         let radius_m = self.pad_exclusion_radius_m;
+        // The vehicle as it was when the frame was exposed (the runner interpolates it from
+        // telemetry); as it is now when the frame came without it. A box is placed with it:
+        // in gusts the vehicle turns by degrees between the exposure and this step.
+        let at_capture = frame
+            .value
+            .vehicle_at_capture
+            .map(|s| (s.attitude, s.position_ned_m))
+            .or_else(|| state.as_ref().map(|s| (s.attitude, s.position_ned_m)));
         let detections: Vec<HazardDetection> = detections
             .into_iter()
             .map(|d| {
@@ -401,9 +410,9 @@ impl Task for HazardCnnTask {
                     class_name: self.classes[d.class_id].clone(),
                     confidence: d.confidence,
                     bbox: d.bbox,
-                    position_ned_m: state
-                        .as_ref()
-                        .and_then(|s| ground_position_ned_m(&camera, s, u, v)),
+                    position_ned_m: at_capture.and_then(|(attitude, position)| {
+                        ground_position_ned_m(&camera, &attitude, position, u, v)
+                    }),
                 }
             })
             .filter(|d| match (d.position_ned_m, pad_ne_m) {
@@ -613,20 +622,35 @@ mod tests {
             offboard: true,
         };
         let (cx, cy) = (camera.cx_px, camera.cy_px);
-        let below = ground_position_ned_m(&camera, &vehicle, cx, cy).unwrap();
+        let below =
+            ground_position_ned_m(&camera, &vehicle.attitude, vehicle.position_ned_m, cx, cy)
+                .unwrap();
         assert!(
             (below - Vector3::new(5.0, -3.0, 0.0)).norm() < 1e-9,
             "{below}"
         );
         // 100 px right of centre: tan = 100 / f; with yaw 0 the image's right is east.
-        let right = ground_position_ned_m(&camera, &vehicle, cx + 100.0, cy).unwrap();
+        let right = ground_position_ned_m(
+            &camera,
+            &vehicle.attitude,
+            vehicle.position_ned_m,
+            cx + 100.0,
+            cy,
+        )
+        .unwrap();
         let expected_east_m = -3.0 + 10.0 * 100.0 / camera.fx_px;
         assert!((right.y - expected_east_m).abs() < 1e-9 && (right.x - 5.0).abs() < 1e-9);
         // Without a position, or on the ground, nothing is placed.
         vehicle.position_ned_m = Some(Vector3::new(5.0, -3.0, 0.0));
-        assert!(ground_position_ned_m(&camera, &vehicle, cx, cy).is_none());
+        assert!(
+            ground_position_ned_m(&camera, &vehicle.attitude, vehicle.position_ned_m, cx, cy)
+                .is_none()
+        );
         vehicle.position_ned_m = None;
-        assert!(ground_position_ned_m(&camera, &vehicle, cx, cy).is_none());
+        assert!(
+            ground_position_ned_m(&camera, &vehicle.attitude, vehicle.position_ned_m, cx, cy)
+                .is_none()
+        );
     }
 
     #[test]
@@ -658,6 +682,7 @@ mod tests {
             frames.publish(
                 now,
                 CameraFrame {
+                    vehicle_at_capture: None,
                     frame_index,
                     image: image.clone(),
                 },

@@ -1120,6 +1120,7 @@ mod tests {
             self.frames.as_ref().unwrap().publish(
                 now,
                 CameraFrame {
+                    vehicle_at_capture: None,
                     frame_index: self.frame_index,
                     image: Arc::new(image),
                 },

@@ -141,6 +141,7 @@ impl Task for TrackerTask {
             time_s: latest.stamp.as_secs_f64(),
             attitude: state.attitude,
             height_above_pad_m: state.height_above_pad_m,
+            position_ned_m: state.position_ned_m,
         });
         let now_s = ctx.now().as_secs_f64();
         let state_fresh = now_s - latest.stamp.as_secs_f64() <= MAX_STATE_AGE_S;
@@ -166,6 +167,7 @@ impl Task for TrackerTask {
                         time_s: now_s,
                         attitude: state.attitude,
                         height_above_pad_m: state.height_above_pad_m,
+                        position_ned_m: state.position_ned_m,
                     });
                 match pad_relative_to_uav_ned_m(
                     &self.camera,

@@ -218,6 +218,7 @@ mod tests {
                 true_pixel(&camera, &pose, &scene.patches[0].point_world(0.0, 0.0)).unwrap();
             self.truth.lock().unwrap().push([centre.0, centre.1]);
             let frame = CameraFrame {
+                vehicle_at_capture: None,
                 frame_index: self.frame_index,
                 image: Arc::new(image),
             };
@@ -323,6 +324,7 @@ mod tests {
         frames.publish(
             scheduler.now(),
             CameraFrame {
+                vehicle_at_capture: None,
                 frame_index: 0,
                 image: Arc::new(tiny),
             },
@@ -372,7 +374,14 @@ mod tests {
         let copy = Arc::new((*image).clone());
         let mut results = Vec::new();
         for (frame_index, image) in [(0, image.clone()), (1, image), (2, copy)] {
-            frames.publish(scheduler.now(), CameraFrame { frame_index, image });
+            frames.publish(
+                scheduler.now(),
+                CameraFrame {
+                    vehicle_at_capture: None,
+                    frame_index,
+                    image,
+                },
+            );
             scheduler.run_for(Duration::from_millis(150)).unwrap();
             results.push(
                 observations

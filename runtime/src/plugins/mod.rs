@@ -140,6 +140,7 @@ mod tests {
             };
             self.state.as_ref().unwrap().publish(ctx.now(), state);
             let frame = CameraFrame {
+                vehicle_at_capture: None,
                 frame_index: self.frame_index,
                 image: self.noisy_frames[self.frame_index as usize % 3].clone(),
             };
