@@ -6,6 +6,7 @@ use runtime::energy::{load_mission_model, MissionModel};
 use runtime::plugins::builtin_registry;
 use runtime::registry::PluginRegistry;
 use sim::outcome::SimOutcome;
+use sim::realism::Realism;
 use sim::tractor::PathKind;
 use sitl::mission::{simulate, Faults, SimOptions};
 use std::path::Path;
@@ -268,12 +269,17 @@ fn the_same_seed_flies_the_same_mission() {
 /// tracker catches up with the pad it fell behind, and the mission lands.
 #[test]
 fn a_lost_mavlink_link_triggers_the_failsafe_and_the_mission_recovers() {
+    // The ideal world: the failsafe and the recovery are what is checked here. In the realistic
+    // world this seed recovers from the loss too, then at t ≈ 41 s flies 5 m off the pad on a
+    // relative estimate 4 m wrong and loses it: a landing failure of the kind the evaluation
+    // counts, not the failsafe's.
     let outcome = fly(SimOptions {
         tracking_s: Some(15.0),
         faults: Faults {
             link_loss: Some((8.0, 10.0)),
             ..Faults::default()
         },
+        realism: Realism::ideal(),
         ..short(2)
     });
     let lost = outcome
