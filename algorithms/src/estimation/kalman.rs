@@ -51,6 +51,10 @@ pub struct TrackerConfig {
     /// fixes agree with each other, not with the prediction, so the prediction is what is
     /// wrong (a platform that started moving between two slow fixes). 0 never restarts.
     pub restart_after_rejections: u32,
+    /// …and only once the gated fixes in a row span at least this long (0: the count alone).
+    /// At 10 fps two gated fixes are 0.1 s apart: two false detections would move the
+    /// estimate metres; at the seed's 0.5 fps two span 2 s.
+    pub restart_after_rejected_s: f64,
 }
 
 impl Default for TrackerConfig {
@@ -60,6 +64,7 @@ impl Default for TrackerConfig {
             gate_nis: CHI2_3DOF_99,
             history_s: 0.5,
             restart_after_rejections: 2,
+            restart_after_rejected_s: 0.0,
         }
     }
 }
@@ -113,8 +118,9 @@ pub struct Tracker {
     /// States at past prediction times, oldest first; the last is the current estimate.
     history: VecDeque<RelativeEstimate>,
     last_fix_time_s: f64,
-    /// Fixes gated out since the last accepted one.
+    /// Fixes gated out since the last accepted one, and the capture time of the first.
     rejections_in_a_row: u32,
+    first_rejection_s: f64,
 }
 
 impl Tracker {
@@ -138,6 +144,7 @@ impl Tracker {
             history: VecDeque::new(),
             last_fix_time_s: f64::NEG_INFINITY,
             rejections_in_a_row: 0,
+            first_rejection_s: f64::NAN,
         })
     }
 
@@ -241,9 +248,16 @@ impl Tracker {
         };
         let nis = innovation.dot(&s_chol.solve(&innovation));
         if nis > self.config.gate_nis {
+            if self.rejections_in_a_row == 0 {
+                self.first_rejection_s = fix.capture_time_s;
+            }
             self.rejections_in_a_row += 1;
             let restart = self.config.restart_after_rejections;
-            if restart > 0 && self.rejections_in_a_row >= restart {
+            let span_s = fix.capture_time_s - self.first_rejection_s;
+            if restart > 0
+                && self.rejections_in_a_row >= restart
+                && span_s >= self.config.restart_after_rejected_s
+            {
                 // Restart at the fix, carried to the present by the motion since its capture.
                 let carried = now.uav_relative_ned_m - at_capture.uav_relative_ned_m;
                 self.history.clear();
@@ -665,6 +679,51 @@ mod tests {
             let est = tracker.estimate().unwrap();
             assert!((est.uav_relative_ned_m.x + 3.0).abs() < 1e-9, "{est:?}");
         }
+    }
+
+    /// At 10 fps, with restarts only after 1 s of gated fixes: two false detections in a row
+    /// (the pad seen 5 m off) are rejected and do not move the estimate; a pad truly 5 m off
+    /// for a second restarts it there.
+    #[test]
+    fn a_restart_needs_the_gated_fixes_to_span_the_configured_time() {
+        let cov = Matrix3::identity() * 0.01;
+        let fix = |t: f64, east_m: f64| VisionFix {
+            capture_time_s: t,
+            uav_relative_ned_m: Vector3::new(0.0, east_m, -7.5),
+            covariance_m2: cov,
+        };
+        let config = TrackerConfig {
+            restart_after_rejected_s: 1.0,
+            ..TrackerConfig::default()
+        };
+        let mut tracker = Tracker::new(config).unwrap();
+        tracker.correct(&fix(0.0, 0.0)).unwrap();
+        let mut step = |t: f64, east_m: f64| {
+            tracker.predict(t + 0.01, &MotionInput::default()).unwrap();
+            let outcome = tracker.correct(&fix(t, east_m)).unwrap();
+            (outcome, tracker.estimate().unwrap().uav_relative_ned_m.y)
+        };
+        for (t, east_m) in [(0.1, 5.0), (0.2, 5.0)] {
+            let (outcome, estimate_m) = step(t, east_m);
+            assert!(
+                matches!(outcome, FixOutcome::Rejected { .. }),
+                "{outcome:?}"
+            );
+            assert!(estimate_m.abs() < 1e-9, "moved to {estimate_m}");
+        }
+        // The true pad again: accepted, and the count starts over.
+        assert!(matches!(step(0.3, 0.0).0, FixOutcome::Accepted { .. }));
+        let mut restarted_at = None;
+        for k in 4..=20 {
+            let t = 0.1 * k as f64;
+            if let (FixOutcome::Restarted { .. }, estimate_m) = step(t, 5.0) {
+                restarted_at = Some((t, estimate_m));
+                break;
+            }
+        }
+        let (t, estimate_m) = restarted_at.expect("a second of consistent fixes restarts");
+        assert!((t - 1.4).abs() < 1e-9, "restarted at {t} s");
+        assert!((estimate_m - 5.0).abs() < 1e-9);
     }
 
     #[test]
