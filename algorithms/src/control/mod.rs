@@ -107,6 +107,7 @@ pub(crate) mod closed_loop_tests {
                         descent_allowed: true,
                         predicted_uav_minus_pad_ne_m: None,
                         setpoints_followed: true,
+                        pad_in_view_offset_per_height: Vector2::zeros(),
                     })
                     .unwrap();
                 if out.land_command && committed_at_s.is_nan() {

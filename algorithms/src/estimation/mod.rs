@@ -3,6 +3,7 @@
 
 pub mod attitude_history;
 pub mod kalman;
+pub mod pad_height;
 pub mod platform_velocity;
 pub mod projection;
 pub mod stereo_altitude;

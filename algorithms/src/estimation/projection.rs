@@ -279,6 +279,46 @@ pub fn image_footprint_ned_m(
     Ok(footprint)
 }
 
+/// Where the pad must lie, relative to a vehicle `height_m` above it, for the camera to see it
+/// inside the image shrunk by `margin_fraction` of its half-size on each side: the point nearest
+/// straight below that does (pad − UAV, north and east, metres). Zero while straight below is
+/// in that part of the image; in strong wind a quadrotor leans by more than a fixed downward
+/// camera's half field of view (28° in 12 m/s for an Iris-class vehicle, 23° half of a 60°
+/// 4:3 camera's short side), and the pad under it is out of sight. `None` where the camera
+/// cannot see below the vehicle at all (a lean past the horizon).
+pub fn pad_in_view_offset_ne_m(
+    camera: &impl CameraModel,
+    attitude: &Attitude,
+    height_m: f64,
+    margin_fraction: f64,
+) -> Option<Vector2<f64>> {
+    if attitude.check().is_err() || !(height_m.is_finite() && height_m > 0.0) {
+        return None;
+    }
+    let pose = CameraPose::downward(
+        Vector3::zeros(),
+        attitude.roll_rad,
+        attitude.pitch_rad,
+        attitude.yaw_rad,
+    );
+    let below = pose.world_to_camera(&Point3::new(0.0, 0.0, height_m));
+    let (u_px, v_px) = camera.project_point(&below)?;
+    let keep = (1.0 - margin_fraction).clamp(0.0, 1.0);
+    let (half_w, half_h) = (
+        camera.width_px() as f64 / 2.0,
+        camera.height_px() as f64 / 2.0,
+    );
+    let (centre_u, centre_v) = (half_w - 0.5, half_h - 0.5);
+    let clamped_u = u_px.clamp(centre_u - keep * half_w, centre_u + keep * half_w);
+    let clamped_v = v_px.clamp(centre_v - keep * half_h, centre_v + keep * half_h);
+    if clamped_u == u_px && clamped_v == v_px {
+        return Some(Vector2::zeros());
+    }
+    pad_relative_to_uav_ned_m(camera, attitude, height_m, clamped_u, clamped_v)
+        .ok()
+        .map(|relative| relative.xy())
+}
+
 /// The seed's step 8: the pad centre from one marker of the pad whose centre lies at
 /// `marker_offset_frd_m` = (forward, right) metres from the pad centre in the pad's own frame,
 /// the pad heading `pad_yaw_rad` from north.
@@ -469,6 +509,42 @@ mod tests {
             let direct = pad_relative_to_uav_ned_m(&cam, &attitude, h, u, v).unwrap();
             assert!(close(&via_h, &direct, MM), "{via_h} vs {direct}");
         }
+    }
+
+    #[test]
+    fn the_pad_in_view_offset_is_where_the_leaning_camera_sees_the_pad_at_its_margin() {
+        let cam = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
+        let (h, margin) = (7.5, 0.3);
+        let offset = |attitude: Attitude| pad_in_view_offset_ne_m(&cam, &attitude, h, margin);
+        // Level, or leaning less than the kept part of the view: straight below is seen.
+        assert_eq!(offset(Attitude::default()), Some(Vector2::zeros()));
+        assert_eq!(
+            offset(Attitude::new(0.2, -0.1, 1.0)),
+            Some(Vector2::zeros())
+        );
+        // Rolled right 28° (wind from the east): the axis looks 28° west, the image's right
+        // margin (kept angle atan(0.7·tan 30°) east of the axis) looks 28° − kept west of
+        // straight down, and there the pad must be.
+        let roll = 28f64.to_radians();
+        let kept_x = (0.7 * 30f64.to_radians().tan()).atan();
+        let got = offset(Attitude::new(roll, 0.0, 0.0)).unwrap();
+        let want = Vector2::new(0.0, -h * (roll - kept_x).tan());
+        assert!((got - want).norm() < MM, "{got} vs {want}");
+        // Pitched up 30°: the axis looks north; the short side's margin decides.
+        let pitch = 30f64.to_radians();
+        let kept_y = (0.7 * 240.0 / cam.fy_px).atan();
+        let got = offset(Attitude::new(0.0, pitch, 0.0)).unwrap();
+        let want = Vector2::new(h * (pitch - kept_y).tan(), 0.0);
+        assert!((got - want).norm() < MM, "{got} vs {want}");
+        // Yawed east the same lean points the offset east.
+        let got = offset(Attitude::new(0.0, pitch, std::f64::consts::FRAC_PI_2)).unwrap();
+        assert!((got - Vector2::new(0.0, want.x)).norm() < MM, "{got}");
+        // Leaning past the horizon, or no height: nothing to say.
+        assert_eq!(offset(Attitude::new(0.0, 1.7, 0.0)), None);
+        assert_eq!(
+            pad_in_view_offset_ne_m(&cam, &Attitude::default(), 0.0, margin),
+            None
+        );
     }
 
     #[test]

@@ -26,6 +26,7 @@
 use crate::telemetry::BatteryTelemetry;
 use crate::topics::{LandingSetpoint, VehicleState};
 use algorithms::control::landing::LandingMode;
+use algorithms::estimation::pad_height::PadHeightEstimator;
 use algorithms::estimation::projection::Attitude;
 use mavlink::dialects::common::{
     MavAutopilot, MavCmd, MavFrame, MavLandedState, MavMessage, MavModeFlag, MavResult,
@@ -301,6 +302,8 @@ pub struct TelemetryState {
     last_position_boot_ms: Option<u32>,
     /// Tilt-corrected rangefinder height, with the runtime time it arrived.
     rangefinder: Option<(f64, f64)>,
+    /// Tells the pad from the ground beside it in the rangefinder's readings.
+    pad_height: PadHeightEstimator,
     landed: bool,
     battery: Option<BatteryTelemetry>,
     /// The home point's altitude above mean sea level (GLOBAL_POSITION_INT alt − relative_alt).
@@ -339,6 +342,11 @@ impl TelemetryState {
                     // An out-of-range reading clears the old one: the pad may have gone.
                     self.rangefinder =
                         rangefinder_height_m(sensor, &attitude).map(|height| (height, now_s));
+                    if let (Some((height_m, _)), Some(position)) =
+                        (self.rangefinder, self.position_ned_m)
+                    {
+                        self.pad_height.update(now_s, height_m, -position.z);
+                    }
                     applied.vehicle_state =
                         self.attitude.is_some() && self.position_ned_m.is_some();
                 }
@@ -407,15 +415,20 @@ impl TelemetryState {
     }
 
     /// The vehicle as last reported, once both attitude and position have come in. Height is
-    /// the rangefinder's when it has a reading younger than [`RANGEFINDER_STALE_S`], else −z
-    /// (height above the home point).
+    /// above the pad from the rangefinder's levels ([`PadHeightEstimator`]: the same whether
+    /// the beam hits the pad or the ground beside it), else the latest reading when younger
+    /// than [`RANGEFINDER_STALE_S`], else −z (height above the home point).
     pub fn vehicle_state(&self, now_s: f64) -> Option<VehicleState> {
         let attitude = self.attitude?;
         let position = self.position_ned_m?;
-        let height_above_pad_m = match self.rangefinder {
-            Some((height, at_s)) if now_s - at_s <= RANGEFINDER_STALE_S => height,
-            _ => -position.z,
-        };
+        let height_above_pad_m = self
+            .pad_height
+            .height_above_pad_m(-position.z)
+            .or(self
+                .rangefinder
+                .filter(|(_, at_s)| now_s - at_s <= RANGEFINDER_STALE_S)
+                .map(|(height_m, _)| height_m))
+            .unwrap_or(-position.z);
         Some(VehicleState {
             attitude,
             velocity_ned_m_s: self.velocity_ned_m_s.unwrap_or_else(Vector3::zeros),
@@ -919,6 +932,61 @@ mod tests {
         }
     }
 
+    /// A beam that slips off the 1 m pad onto the field does not make the vehicle 1 m higher.
+    #[test]
+    fn the_height_above_the_pad_ignores_the_beam_slipping_onto_the_ground() {
+        let mut state = TelemetryState::new();
+        state.apply(
+            &MavMessage::ATTITUDE(ATTITUDE_DATA {
+                time_boot_ms: 0,
+                roll: 0.0,
+                pitch: 0.0,
+                yaw: 0.0,
+                rollspeed: 0.0,
+                pitchspeed: 0.0,
+                yawspeed: 0.0,
+            }),
+            0.0,
+        );
+        let at_height = |z_m: f32| {
+            MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
+                time_boot_ms: 0,
+                x: 0.0,
+                y: 0.0,
+                z: z_m,
+                vx: 0.0,
+                vy: 0.0,
+                vz: 0.0,
+            })
+        };
+        let range = |cm| {
+            MavMessage::DISTANCE_SENSOR(distance(
+                cm,
+                MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270,
+            ))
+        };
+        // Climbing out over the field, then over the pad at 3 m: 2 m above it.
+        state.apply(&at_height(-0.5), 0.0);
+        state.apply(&range(50), 0.0);
+        state.apply(&at_height(-3.0), 1.0);
+        state.apply(&range(300), 1.0);
+        state.apply(&range(200), 1.1);
+        let height_m =
+            |state: &TelemetryState| state.vehicle_state(1.2).unwrap().height_above_pad_m;
+        assert!(
+            (height_m(&state) - 2.0).abs() < 1e-6,
+            "{}",
+            height_m(&state)
+        );
+        // The beam slips off the pad: still 2 m above it, where the raw reading says 3.
+        state.apply(&range(300), 1.2);
+        assert!(
+            (height_m(&state) - 2.0).abs() < 0.01,
+            "{}",
+            height_m(&state)
+        );
+    }
+
     #[test]
     fn vehicle_state_from_attitude_position_rangefinder_and_landed() {
         let mut state = TelemetryState::new();
@@ -964,9 +1032,12 @@ mod tests {
             0.02,
         );
         let expected = 4.0 * f64::from(0.1f32).cos() * f64::from(-0.2f32).cos();
-        assert!((state.vehicle_state(0.02).unwrap().height_above_pad_m - expected).abs() < 1e-12);
-        // Stale rangefinder: back to −z.
-        assert_eq!(state.vehicle_state(1.0).unwrap().height_above_pad_m, 5.0);
+        let height_m =
+            |state: &TelemetryState, now_s| state.vehicle_state(now_s).unwrap().height_above_pad_m;
+        assert!((height_m(&state, 0.02) - expected).abs() < 1e-12);
+        // Stale rangefinder: the surface it saw is where it was (the autopilot's altitude
+        // above that level), not the home point.
+        assert!((height_m(&state, 1.0) - expected).abs() < 1e-12);
         // A forward-looking sensor is not the downward one.
         state.apply(
             &MavMessage::DISTANCE_SENSOR(distance(
@@ -975,8 +1046,8 @@ mod tests {
             )),
             1.0,
         );
-        assert_eq!(state.vehicle_state(1.0).unwrap().height_above_pad_m, 5.0);
-        // Out of range clears the reading.
+        assert!((height_m(&state, 1.0) - expected).abs() < 1e-12);
+        // Out of range clears the reading, not the level.
         state.apply(
             &MavMessage::DISTANCE_SENSOR(distance(
                 u16::MAX,
@@ -984,7 +1055,7 @@ mod tests {
             )),
             1.0,
         );
-        assert_eq!(state.vehicle_state(1.0).unwrap().height_above_pad_m, 5.0);
+        assert!((height_m(&state, 1.0) - expected).abs() < 1e-12);
         let landed = |landed_state| {
             MavMessage::EXTENDED_SYS_STATE(EXTENDED_SYS_STATE_DATA {
                 vtol_state: mavlink::dialects::common::MavVtolState::MAV_VTOL_STATE_MC,

@@ -47,13 +47,13 @@ fn default_process_noise() -> f64 {
 fn default_fix_std() -> f64 {
     0.1
 }
-fn default_fov() -> f64 {
+pub(super) fn default_fov() -> f64 {
     60.0
 }
-fn default_width() -> usize {
+pub(super) fn default_width() -> usize {
     640
 }
-fn default_height() -> usize {
+pub(super) fn default_height() -> usize {
     480
 }
 

@@ -19,6 +19,8 @@ use algorithms::control::landing::{
     HorizontalController, LandingConfig, LandingController, LandingInput, RelativeFix,
 };
 use algorithms::control::mpc::MpcConfig;
+use algorithms::estimation::projection::pad_in_view_offset_ne_m;
+use algorithms::vision::camera::PinholeCamera;
 use nalgebra::Vector2;
 use serde::Deserialize;
 
@@ -66,6 +68,20 @@ struct Params {
     /// slower than the one the default suits needs more.
     #[serde(default = "default_mpc_solve_time_limit")]
     mpc_solve_time_limit_s: f64,
+    /// Keep the pad in the camera's view: in strong wind the vehicle leans further than the
+    /// camera's half field of view, so it follows from upwind, by as much as keeps the pad
+    /// inside the image less this margin (a fraction of its half-size on each side).
+    #[serde(default = "default_keep_in_view")]
+    keep_in_view: bool,
+    #[serde(default = "default_keep_in_view_margin")]
+    keep_in_view_margin_fraction: f64,
+    /// The downward camera, as the tracker's (`kalman_tracker`) params give it.
+    #[serde(default = "super::kalman_tracker::default_fov")]
+    camera_horizontal_fov_deg: f64,
+    #[serde(default = "super::kalman_tracker::default_width")]
+    image_width_px: usize,
+    #[serde(default = "super::kalman_tracker::default_height")]
+    image_height_px: usize,
 }
 
 #[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
@@ -88,6 +104,14 @@ fn default_mpc_max_accel() -> f64 {
 fn default_mpc_solve_time_limit() -> f64 {
     MpcConfig::default().solve_time_limit_s
 }
+fn default_keep_in_view() -> bool {
+    true
+}
+
+fn default_keep_in_view_margin() -> f64 {
+    0.3
+}
+
 fn default_final_descent_speed() -> f64 {
     LandingConfig::default().final_descent_speed_m_s
 }
@@ -110,6 +134,8 @@ pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
 
 struct GuidanceTask {
     controller: LandingController,
+    /// The camera and the margin the pad is kept inside, when keeping it in view.
+    keep_in_view: Option<(PinholeCamera, f64)>,
     max_fix_age_s: f64,
     max_vision_gap_s: f64,
     vehicle: Option<Subscriber<VehicleState>>,
@@ -160,8 +186,21 @@ impl GuidanceTask {
             ..defaults
         })
         .map_err(|e| TaskError::Params(e.to_string()))?;
+        let margin = params.keep_in_view_margin_fraction;
+        if !(0.0..1.0).contains(&margin) {
+            return Err(TaskError::Params(format!(
+                "keep_in_view_margin_fraction = {margin} must lie in [0, 1)"
+            )));
+        }
+        let camera = PinholeCamera::from_fov(
+            params.image_width_px,
+            params.image_height_px,
+            params.camera_horizontal_fov_deg.to_radians(),
+        )
+        .map_err(|e| TaskError::Params(format!("the landing's camera: {e}")))?;
         Ok(Self {
             controller,
+            keep_in_view: params.keep_in_view.then_some((camera, margin)),
             max_fix_age_s: params.max_fix_age_s,
             max_vision_gap_s: params.max_vision_gap_s,
             vehicle: None,
@@ -235,6 +274,13 @@ impl Task for GuidanceTask {
             descent_allowed,
             predicted_uav_minus_pad_ne_m: fresh.map(|r| r.estimate.uav_relative_ned_m.xy()),
             setpoints_followed,
+            pad_in_view_offset_per_height: self
+                .keep_in_view
+                .as_ref()
+                .and_then(|(camera, margin)| {
+                    pad_in_view_offset_ne_m(camera, &state.attitude, 1.0, *margin)
+                })
+                .unwrap_or_else(Vector2::zeros),
         });
         match step {
             Ok(out) => {
@@ -329,6 +375,39 @@ mod tests {
             ("wind_compensation_tau_s = -1.0", "wind_compensation_tau_s"),
             ("final_descent_speed_m_s = 0.0", "final_descent_speed_m_s"),
             ("integral_gain_close_per_s2 = -0.5", "ki_per_s2"),
+        ] {
+            let Err(TaskError::Params(why)) = task(params) else {
+                panic!("{params} must be refused");
+            };
+            assert!(why.contains(name), "{params}: {why}");
+        }
+    }
+
+    /// Keeping the pad in view is on by default with the tracker's camera; off, or with its own
+    /// camera and margin; bad values are named.
+    #[test]
+    fn the_keep_in_view_parameters_are_taken_and_checked() {
+        let default = task("").unwrap();
+        let (camera, margin) = default.keep_in_view.expect("on by default");
+        assert_eq!((camera.width_px, camera.height_px), (640, 480));
+        assert_eq!(margin, 0.3);
+        assert!(task("keep_in_view = false").unwrap().keep_in_view.is_none());
+        let wide = task("camera_horizontal_fov_deg = 90.0\nkeep_in_view_margin_fraction = 0.1")
+            .unwrap()
+            .keep_in_view
+            .unwrap();
+        assert!((wide.0.fx_px - 320.0).abs() < 1e-9, "{}", wide.0.fx_px);
+        assert_eq!(wide.1, 0.1);
+        for (params, name) in [
+            (
+                "keep_in_view_margin_fraction = 1.0",
+                "keep_in_view_margin_fraction",
+            ),
+            (
+                "keep_in_view_margin_fraction = -0.1",
+                "keep_in_view_margin_fraction",
+            ),
+            ("camera_horizontal_fov_deg = 0.0", "camera"),
         ] {
             let Err(TaskError::Params(why)) = task(params) else {
                 panic!("{params} must be refused");
