@@ -28,6 +28,8 @@ pub enum TrackerError {
     Gate { gate: f64 },
     #[error("the history must be non-negative and finite, got {history_s} s")]
     History { history_s: f64 },
+    #[error("restart_after_rejected_s must be non-negative and finite, got {span_s} s")]
+    RestartSpan { span_s: f64 },
     #[error("a time or value given to the tracker is not finite")]
     NotFinite,
     #[error("time went backwards: {time_s} s is before the tracker's {now_s} s")]
@@ -138,6 +140,10 @@ impl Tracker {
             return Err(TrackerError::History {
                 history_s: config.history_s,
             });
+        }
+        let span_s = config.restart_after_rejected_s;
+        if !(span_s.is_finite() && span_s >= 0.0) {
+            return Err(TrackerError::RestartSpan { span_s });
         }
         Ok(Self {
             config,
@@ -771,6 +777,13 @@ mod tests {
             }),
             Err(TrackerError::Gate { .. })
         ));
+        let error = Tracker::new(TrackerConfig {
+            restart_after_rejected_s: -1.0,
+            ..TrackerConfig::default()
+        })
+        .unwrap_err();
+        assert_eq!(error, TrackerError::RestartSpan { span_s: -1.0 });
+        assert!(error.to_string().contains("restart_after_rejected_s"));
         let mut tracker = Tracker::new(TrackerConfig::default()).unwrap();
         assert_eq!(
             tracker.predict(0.0, &MotionInput::default()),
