@@ -621,11 +621,7 @@ impl Machine {
                 );
                 // Where the commands have taken it (the autopilot flies them).
                 self.search_displacement_ne_m += shift * dt_s;
-                (
-                    shift,
-                    self.hold_height(height_m, c.initial_height_m),
-                    false,
-                )
+                (shift, self.hold_height(height_m, c.initial_height_m), false)
             }
             LandingMode::Follow => {
                 let h = tracking_velocity(self)?;

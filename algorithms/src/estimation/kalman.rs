@@ -30,6 +30,8 @@ pub enum TrackerError {
     History { history_s: f64 },
     #[error("restart_after_rejected_s must be non-negative and finite, got {span_s} s")]
     RestartSpan { span_s: f64 },
+    #[error("quick_restart_within_m must be non-negative and finite, got {within_m} m")]
+    QuickRestart { within_m: f64 },
     #[error("a time or value given to the tracker is not finite")]
     NotFinite,
     #[error("time went backwards: {time_s} s is before the tracker's {now_s} s")]
@@ -57,6 +59,10 @@ pub struct TrackerConfig {
     /// At 10 fps two gated fixes are 0.1 s apart: two false detections would move the
     /// estimate metres; at the seed's 0.5 fps two span 2 s.
     pub restart_after_rejected_s: f64,
+    /// …unless every gated fix in the run lay within this horizontal distance of the
+    /// prediction: that is the prediction lagging a manoeuvre (a tractor turning, a gust), not
+    /// a false detection metres away, and waiting would lose the pad (0: the span always).
+    pub quick_restart_within_m: f64,
 }
 
 impl Default for TrackerConfig {
@@ -67,6 +73,7 @@ impl Default for TrackerConfig {
             history_s: 0.5,
             restart_after_rejections: 2,
             restart_after_rejected_s: 0.0,
+            quick_restart_within_m: 0.0,
         }
     }
 }
@@ -123,6 +130,8 @@ pub struct Tracker {
     /// Fixes gated out since the last accepted one, and the capture time of the first.
     rejections_in_a_row: u32,
     first_rejection_s: f64,
+    /// The furthest of them from the prediction, horizontally.
+    rejected_furthest_m: f64,
 }
 
 impl Tracker {
@@ -145,12 +154,17 @@ impl Tracker {
         if !(span_s.is_finite() && span_s >= 0.0) {
             return Err(TrackerError::RestartSpan { span_s });
         }
+        let within_m = config.quick_restart_within_m;
+        if !(within_m.is_finite() && within_m >= 0.0) {
+            return Err(TrackerError::QuickRestart { within_m });
+        }
         Ok(Self {
             config,
             history: VecDeque::new(),
             last_fix_time_s: f64::NEG_INFINITY,
             rejections_in_a_row: 0,
             first_rejection_s: f64::NAN,
+            rejected_furthest_m: 0.0,
         })
     }
 
@@ -254,15 +268,19 @@ impl Tracker {
         };
         let nis = innovation.dot(&s_chol.solve(&innovation));
         if nis > self.config.gate_nis {
+            let off_m = innovation.xy().norm();
             if self.rejections_in_a_row == 0 {
                 self.first_rejection_s = fix.capture_time_s;
+                self.rejected_furthest_m = 0.0;
             }
             self.rejections_in_a_row += 1;
+            self.rejected_furthest_m = self.rejected_furthest_m.max(off_m);
             let restart = self.config.restart_after_rejections;
             let span_s = fix.capture_time_s - self.first_rejection_s;
+            let lagging = self.rejected_furthest_m <= self.config.quick_restart_within_m;
             if restart > 0
                 && self.rejections_in_a_row >= restart
-                && span_s >= self.config.restart_after_rejected_s
+                && (span_s >= self.config.restart_after_rejected_s || lagging)
             {
                 // Restart at the fix, carried to the present by the motion since its capture.
                 let carried = now.uav_relative_ned_m - at_capture.uav_relative_ned_m;
@@ -730,6 +748,37 @@ mod tests {
         let (t, estimate_m) = restarted_at.expect("a second of consistent fixes restarts");
         assert!((t - 1.4).abs() < 1e-9, "restarted at {t} s");
         assert!((estimate_m - 5.0).abs() < 1e-9);
+    }
+
+    /// Gated fixes close to the prediction are the prediction lagging (a turn): with
+    /// `quick_restart_within_m` they restart the filter at the second, while fixes further
+    /// off still need the span.
+    #[test]
+    fn gated_fixes_near_the_prediction_restart_at_once() {
+        let fix = |t: f64, east_m: f64| VisionFix {
+            capture_time_s: t,
+            uav_relative_ned_m: Vector3::new(0.0, east_m, -7.5),
+            covariance_m2: Matrix3::identity() * 0.01,
+        };
+        let mut tracker = Tracker::new(TrackerConfig {
+            restart_after_rejected_s: 1.0,
+            quick_restart_within_m: 1.5,
+            ..TrackerConfig::default()
+        })
+        .unwrap();
+        tracker.correct(&fix(0.0, 0.0)).unwrap();
+        let mut step = |t: f64, east_m: f64| {
+            tracker.predict(t + 0.01, &MotionInput::default()).unwrap();
+            tracker.correct(&fix(t, east_m)).unwrap()
+        };
+        // 1.2 m off: gated (σ 0.1 m), and the second restarts.
+        assert!(matches!(step(0.1, 1.2), FixOutcome::Rejected { .. }));
+        assert!(matches!(step(0.2, 1.2), FixOutcome::Restarted { .. }));
+        // From there, 5 m off twice: rejected both times.
+        assert!(matches!(step(0.3, 6.2), FixOutcome::Rejected { .. }));
+        assert!(matches!(step(0.4, 6.2), FixOutcome::Rejected { .. }));
+        // One near fix after a far one in the same run does not make the run quick.
+        assert!(matches!(step(0.5, 2.0), FixOutcome::Rejected { .. }));
     }
 
     #[test]
