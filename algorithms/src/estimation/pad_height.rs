@@ -47,7 +47,7 @@ pub enum Surface {
 }
 
 /// See the module docs.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct PadHeightEstimator {
     config: PadHeightConfig,
     /// The ground's altitude (up, in the autopilot's frame), metres.
@@ -55,17 +55,6 @@ pub struct PadHeightEstimator {
     /// The pad's top above the ground, once a reading has hit it.
     pad_above_ground_m: Option<f64>,
     last_time_s: Option<f64>,
-}
-
-impl Default for PadHeightEstimator {
-    fn default() -> Self {
-        Self {
-            config: PadHeightConfig::default(),
-            ground_up_m: None,
-            pad_above_ground_m: None,
-            last_time_s: None,
-        }
-    }
 }
 
 impl PadHeightEstimator {
