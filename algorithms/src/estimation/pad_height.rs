@@ -22,6 +22,10 @@ pub struct PadHeightConfig {
     /// Low-pass time constant of the ground level and the pad's height: longer than the
     /// rangefinder's noise, shorter than the drift of the autopilot's altitude (tens of s).
     pub level_tau_s: f64,
+    /// While the latest reading hit the pad and is younger than this, the height is that
+    /// reading (moved by the altitude change since): exact to its noise on the pad, where a
+    /// low-passed level could be a decimetre off and end a descent in the air.
+    pub reading_fresh_s: f64,
 }
 
 impl Default for PadHeightConfig {
@@ -29,6 +33,7 @@ impl Default for PadHeightConfig {
         Self {
             gate_m: 0.4,
             level_tau_s: 1.0,
+            reading_fresh_s: 0.5,
         }
     }
 }
@@ -55,6 +60,8 @@ pub struct PadHeightEstimator {
     /// The pad's top above the ground, once a reading has hit it.
     pad_above_ground_m: Option<f64>,
     last_time_s: Option<f64>,
+    /// The latest reading that hit the pad: the pad's altitude then, and when.
+    latest_pad_up_m: Option<(f64, f64)>,
 }
 
 impl PadHeightEstimator {
@@ -62,6 +69,7 @@ impl PadHeightEstimator {
         for (name, value) in [
             ("gate_m", config.gate_m),
             ("level_tau_s", config.level_tau_s),
+            ("reading_fresh_s", config.reading_fresh_s),
         ] {
             if !(value.is_finite() && value > 0.0) {
                 return Err(PadHeightError::Config { name, value });
@@ -72,6 +80,7 @@ impl PadHeightEstimator {
             ground_up_m: None,
             pad_above_ground_m: None,
             last_time_s: None,
+            latest_pad_up_m: None,
         })
     }
 
@@ -100,6 +109,8 @@ impl PadHeightEstimator {
             return Some(Surface::Ground);
         };
         let above_ground_m = surface_up_m - *ground_up_m;
+        self.latest_pad_up_m =
+            (above_ground_m > self.config.gate_m).then_some((surface_up_m, time_s));
         if above_ground_m > self.config.gate_m {
             let pad = self.pad_above_ground_m.get_or_insert(above_ground_m);
             // A pad level far from the learned one is a new pad (or another surface): start
@@ -121,9 +132,15 @@ impl PadHeightEstimator {
         }
     }
 
-    /// The height above the pad at `altitude_up_m`; above the ground until a reading has hit
-    /// the pad, `None` before any reading.
-    pub fn height_above_pad_m(&self, altitude_up_m: f64) -> Option<f64> {
+    /// The height above the pad at `altitude_up_m` and `time_s`: from the latest reading
+    /// while it is fresh and hit the pad, else from the levels; above the ground until a
+    /// reading has hit the pad, `None` before any reading.
+    pub fn height_above_pad_m(&self, time_s: f64, altitude_up_m: f64) -> Option<f64> {
+        if let Some((pad_up_m, at_s)) = self.latest_pad_up_m {
+            if time_s - at_s <= self.config.reading_fresh_s {
+                return Some(altitude_up_m - pad_up_m);
+            }
+        }
         let ground_up_m = self.ground_up_m?;
         Some(altitude_up_m - ground_up_m - self.pad_above_ground_m.unwrap_or(0.0))
     }
@@ -171,7 +188,9 @@ mod tests {
             );
             let truth_m = true_up_m - pad_m;
             if tick > 40 {
-                let got_m = estimator.height_above_pad_m(true_up_m + drift_m).unwrap();
+                let got_m = estimator
+                    .height_above_pad_m(time_s, true_up_m + drift_m)
+                    .unwrap();
                 worst_m = worst_m.max((got_m - truth_m).abs());
             }
             raw_jump_m = raw_jump_m.max((reading_m - truth_m).abs());
@@ -189,25 +208,27 @@ mod tests {
     #[test]
     fn the_pad_height_is_remembered_while_the_beam_sees_only_the_ground() {
         let mut estimator = PadHeightEstimator::new(PadHeightConfig::default()).unwrap();
-        assert_eq!(estimator.height_above_pad_m(5.0), None);
+        assert_eq!(estimator.height_above_pad_m(0.0, 5.0), None);
         estimator.update(0.0, 0.1, 0.1);
         estimator.update(1.0, 7.5, 7.5);
-        assert!((estimator.height_above_pad_m(7.5).unwrap() - 7.5).abs() < 1e-9);
+        assert!((estimator.height_above_pad_m(1.0, 7.5).unwrap() - 7.5).abs() < 1e-9);
         for tick in 0..40 {
             estimator.update(2.0 + tick as f64 * 0.1, 6.3, 7.5);
         }
+        // Just after a pad reading the height is that reading, moved by the altitude since.
+        assert!((estimator.height_above_pad_m(5.95, 7.4).unwrap() - 6.2).abs() < 1e-9);
         for tick in 0..40 {
             let surface = estimator.update(6.0 + tick as f64 * 0.1, 7.5, 7.5);
             assert_eq!(surface, Some(Surface::Ground));
         }
-        assert!((estimator.height_above_pad_m(7.5).unwrap() - 6.3).abs() < 0.01);
+        assert!((estimator.height_above_pad_m(10.0, 7.5).unwrap() - 6.3).abs() < 0.01);
     }
 
     #[test]
     fn bad_readings_are_ignored_and_bad_config_is_named() {
         let mut estimator = PadHeightEstimator::new(PadHeightConfig::default()).unwrap();
         assert_eq!(estimator.update(0.0, f64::NAN, 1.0), None);
-        assert_eq!(estimator.height_above_pad_m(1.0), None);
+        assert_eq!(estimator.height_above_pad_m(0.0, 1.0), None);
         let error = PadHeightEstimator::new(PadHeightConfig {
             gate_m: 0.0,
             ..PadHeightConfig::default()
