@@ -109,9 +109,9 @@ impl PadHeightEstimator {
             return Some(Surface::Ground);
         };
         let above_ground_m = surface_up_m - *ground_up_m;
-        self.latest_pad_up_m =
-            (above_ground_m > self.config.gate_m).then_some((surface_up_m, time_s));
-        if above_ground_m > self.config.gate_m {
+        let on_pad = above_ground_m > self.config.gate_m;
+        self.latest_pad_up_m = on_pad.then_some((surface_up_m, time_s));
+        if on_pad {
             let pad = self.pad_above_ground_m.get_or_insert(above_ground_m);
             // A pad level far from the learned one is a new pad (or another surface): start
             // there rather than creep.
