@@ -1307,6 +1307,30 @@ mod tests {
                 ..
             })
         ));
+        let config = LandingConfig {
+            keep_in_view_tau_s: -1.0,
+            ..LandingConfig::default()
+        };
+        assert!(matches!(
+            LandingController::new(config),
+            Err(LandingError::Config {
+                name: "keep_in_view_tau_s",
+                ..
+            })
+        ));
+        // A non-finite keep-in-view offset is refused and leaves the machine as it was.
+        let mut c = LandingController::new(LandingConfig::default()).unwrap();
+        let bad = LandingInput {
+            pad_in_view_offset_per_height: Vector2::new(f64::NAN, 0.0),
+            ..input(0.1, None, 7.5)
+        };
+        assert_eq!(
+            c.step(&bad),
+            Err(LandingError::NonFinite {
+                name: "pad_in_view_offset_per_height"
+            })
+        );
+        assert!(c.step(&input(0.1, None, 7.5)).is_ok());
         let mut config = LandingConfig::default();
         config.pid.max_ctrl_speed_m_s = -1.0;
         assert!(matches!(

@@ -833,6 +833,16 @@ mod tests {
         .unwrap_err();
         assert_eq!(error, TrackerError::RestartSpan { span_s: -1.0 });
         assert!(error.to_string().contains("restart_after_rejected_s"));
+        let error = Tracker::new(TrackerConfig {
+            quick_restart_within_m: f64::NAN,
+            ..TrackerConfig::default()
+        })
+        .unwrap_err();
+        assert!(
+            matches!(error, TrackerError::QuickRestart { .. }),
+            "{error}"
+        );
+        assert!(error.to_string().contains("quick_restart_within_m"));
         let mut tracker = Tracker::new(TrackerConfig::default()).unwrap();
         assert_eq!(
             tracker.predict(0.0, &MotionInput::default()),
