@@ -888,8 +888,10 @@ impl Multirotor {
         );
 
         // Touchdown: crossing the pad's top inside its square, or reaching the ground.
+        // The pad heaves: a top that rose past the vehicle since the last step still counts as
+        // crossed from above (it was above the lower of the two tops).
         let pad_top = pad.centre_ned_m.z;
-        let hits_pad = previous_down <= pad_top
+        let hits_pad = previous_down <= pad_top.max(previous_pad.centre_ned_m.z)
             && self.position_ned_m.z >= pad_top
             && pad.contains_ne(self.position_ned_m.xy());
         let hits_ground = self.position_ned_m.z >= 0.0;
@@ -1260,6 +1262,40 @@ mod tests {
         assert!((r.v.velocity_ned_m_s() - pad.velocity_ned_m_s).norm() < 1e-9);
         let snap = r.v.snapshot(r.t, battery());
         assert_eq!(snap.rangefinder_m, None); // 0 m to the pad: below the minimum range
+    }
+
+    #[test]
+    fn a_pad_rising_into_a_descending_vehicle_is_a_landing_on_it() {
+        let mut r = Run::airborne(5.0);
+        r.stream(Vector3::zeros());
+        r.cmd(AutopilotCommand::SetMode(FlightMode::Offboard))
+            .unwrap();
+        let below = r.v.position_ned_m().xy();
+        let pad_at = |top_down_m: f64| PadState {
+            centre_ned_m: Vector3::new(below.x, below.y, top_down_m),
+            yaw_rad: 0.0,
+            velocity_ned_m_s: Vector3::zeros(),
+            half_size_m: 0.5,
+        };
+        // Down to a centimetre or two above the pad's top, slowly.
+        while r.v.position_ned_m().z < -1.02 {
+            let down_m_s = if r.v.position_ned_m().z < -1.5 {
+                1.0
+            } else {
+                0.3
+            };
+            r.stream(Vector3::new(0.0, 0.0, down_m_s));
+            r.step(Vector3::zeros(), &pad_at(-1.0));
+            assert!(r.v.touchdown().is_none());
+        }
+        assert!(r.v.position_ned_m().z < -1.0);
+        // A heave lifts the top 5 cm within one step: past the vehicle, which never crosses it
+        // from above within the step.
+        r.stream(Vector3::new(0.0, 0.0, 0.3));
+        r.step(Vector3::zeros(), &pad_at(-1.05));
+        let touchdown = r.v.touchdown().expect("a touchdown");
+        assert!(touchdown.on_pad, "{touchdown:?}");
+        assert!(r.v.on_pad_now());
     }
 
     #[test]

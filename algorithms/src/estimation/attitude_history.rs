@@ -21,6 +21,7 @@ pub struct AttitudeSample {
     pub height_above_pad_m: f64,
     /// Local NED position, when the autopilot reports one.
     pub position_ned_m: Option<Vector3<f64>>,
+    pub velocity_ned_m_s: Vector3<f64>,
 }
 
 /// A bounded window of samples in time order.
@@ -82,6 +83,7 @@ impl AttitudeHistory {
                 wrap_pi(a.attitude.yaw_rad + yaw_step * t),
             ),
             height_above_pad_m: lerp(a.height_above_pad_m, b.height_above_pad_m),
+            velocity_ned_m_s: a.velocity_ned_m_s + (b.velocity_ned_m_s - a.velocity_ned_m_s) * t,
             position_ned_m: match (a.position_ned_m, b.position_ned_m) {
                 (Some(p), Some(q)) => Some(p + (q - p) * t),
                 (p, q) => {
@@ -111,6 +113,7 @@ mod tests {
             attitude: Attitude::new(0.0, pitch_rad, yaw_rad),
             height_above_pad_m: height_m,
             position_ned_m: Some(Vector3::new(time_s, -2.0 * time_s, -height_m)),
+            velocity_ned_m_s: Vector3::new(1.0, 2.0 * time_s, 0.0),
         }
     }
 
@@ -130,6 +133,11 @@ mod tests {
         assert!(
             (position - Vector3::new(10.005, -20.01, -7.25)).norm() < 1e-9,
             "{position}"
+        );
+        let velocity = middle.velocity_ned_m_s;
+        assert!(
+            (velocity - Vector3::new(1.0, 20.01, 0.0)).norm() < 1e-9,
+            "{velocity}"
         );
         // Yaw goes the short way across ±π: 3.1 → −3.1 passes π, not 0.
         let yaw = middle.attitude.yaw_rad;

@@ -175,6 +175,14 @@ pub enum ProjectionError {
          the horizon); check the attitude and the camera mounting"
     )]
     AboveHorizon { u_px: f64, v_px: f64 },
+    #[error(
+        "a fix's noise needs a standard deviation at the pad ≥ 0 m and an angle ≥ 0 rad, finite \
+         and not both zero; got {std_at_pad_m} m and {angle_std_rad} rad"
+    )]
+    FixNoise {
+        std_at_pad_m: f64,
+        angle_std_rad: f64,
+    },
 }
 
 /// The vehicle's attitude as PX4 reports it: ZYX Euler angles of the FRD body in NED.
@@ -259,6 +267,40 @@ pub fn pad_relative_to_uav_ned_m(
     Ok(relative)
 }
 
+/// How far a vision fix from [`pad_relative_to_uav_ned_m`] may be off: a floor (the pad's own
+/// sway, the detector's pixel error at close range) plus an angular error that grows with the
+/// height (the attitude's noise and timing, the frame's latency and blur). A fix from 7.5 m is
+/// decimetres off, one from 1 m a few centimetres: filters that weigh them alike lag near the
+/// ground, where the landing needs them most.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FixNoise {
+    pub std_at_pad_m: f64,
+    pub angle_std_rad: f64,
+}
+
+impl FixNoise {
+    /// Both parts must be finite and ≥ 0, and not both zero.
+    pub fn new(std_at_pad_m: f64, angle_std_rad: f64) -> Result<Self, ProjectionError> {
+        let valid = |v: f64| v.is_finite() && v >= 0.0;
+        if !(valid(std_at_pad_m) && valid(angle_std_rad) && std_at_pad_m + angle_std_rad > 0.0) {
+            return Err(ProjectionError::FixNoise {
+                std_at_pad_m,
+                angle_std_rad,
+            });
+        }
+        Ok(Self {
+            std_at_pad_m,
+            angle_std_rad,
+        })
+    }
+
+    /// The variance of a fix along each horizontal axis taken `height_m` above the pad, m².
+    pub fn variance_m2(&self, height_m: f64) -> f64 {
+        let angular_m = height_m.max(0.0) * self.angle_std_rad.tan();
+        self.std_at_pad_m.powi(2) + angular_m.powi(2)
+    }
+}
+
 /// The ground footprint of the image: NED positions relative to the camera of the four image
 /// corners (outer pixel edges, clockwise from the top left), as in the seed's step 3. Fails when a
 /// corner looks at or above the horizon.
@@ -336,6 +378,47 @@ pub fn pad_centre_from_marker(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The angular part is what a camera tilted by the angle std sees: the fix of a pixel
+    /// straight below, projected with the attitude off by that angle, lands that far away.
+    #[test]
+    fn fix_noise_grows_with_height_as_a_tilt_error_does() {
+        let angle_rad = 1.7f64.to_radians();
+        let noise = FixNoise::new(0.01, angle_rad).unwrap();
+        let camera =
+            crate::vision::camera::PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
+        let (cx, cy) = (319.5, 239.5);
+        for height_m in [1.0, 7.5] {
+            let level =
+                pad_relative_to_uav_ned_m(&camera, &Attitude::new(0.0, 0.0, 0.0), height_m, cx, cy)
+                    .unwrap();
+            let tilted = pad_relative_to_uav_ned_m(
+                &camera,
+                &Attitude::new(angle_rad, 0.0, 0.0),
+                height_m,
+                cx,
+                cy,
+            )
+            .unwrap();
+            let shift_m = (tilted - level).xy().norm();
+            let expected_m2 = 0.01f64.powi(2) + shift_m.powi(2);
+            assert!(
+                (noise.variance_m2(height_m) - expected_m2).abs() < 1e-9,
+                "{height_m} m: {} vs {expected_m2}",
+                noise.variance_m2(height_m)
+            );
+        }
+        // 7.5 m is decimetres, 1 m centimetres; below the pad counts as on it.
+        assert!(noise.variance_m2(7.5).sqrt() > 0.2);
+        assert!(noise.variance_m2(1.0).sqrt() < 0.035);
+        assert_eq!(noise.variance_m2(-1.0), 0.01f64.powi(2));
+        for (at_pad, angle) in [(-0.1, 0.01), (0.01, f64::NAN), (0.0, 0.0)] {
+            assert!(matches!(
+                FixNoise::new(at_pad, angle),
+                Err(ProjectionError::FixNoise { .. })
+            ));
+        }
+    }
 
     #[test]
     fn ned_to_body_frd_matches_the_elementary_rotations() {

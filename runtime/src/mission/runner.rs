@@ -305,6 +305,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 attitude: state.attitude,
                 height_above_pad_m: state.height_above_pad_m,
                 position_ned_m: state.position_ned_m,
+                velocity_ned_m_s: state.velocity_ned_m_s,
             });
         }
         if let Some(status) = update.autopilot {

@@ -13,7 +13,7 @@ use algorithms::estimation::kalman::{FixOutcome, MotionInput, Tracker, TrackerCo
 use algorithms::estimation::platform_velocity::{
     PlatformFix, PlatformVelocityConfig, PlatformVelocityEstimator,
 };
-use algorithms::estimation::projection::pad_relative_to_uav_ned_m;
+use algorithms::estimation::projection::{pad_relative_to_uav_ned_m, FixNoise};
 use algorithms::vision::camera::PinholeCamera;
 
 /// How far back a frame's capture can be looked up (a frame older than this is projected
@@ -30,9 +30,12 @@ struct Params {
     /// Process noise q of the relative position (Q = dt·q·I), m²/s.
     #[serde(default = "default_process_noise")]
     process_noise_m2_per_s: f64,
-    /// Standard deviation of one vision fix, metres.
+    /// Standard deviation of one vision fix on the pad (height 0), metres…
     #[serde(default = "default_fix_std")]
     fix_std_m: f64,
+    /// …plus this angle's worth of the height (attitude noise and timing, latency, blur).
+    #[serde(default = "default_fix_angle_std")]
+    fix_angle_std_deg: f64,
     #[serde(default = "default_fov")]
     camera_horizontal_fov_deg: f64,
     #[serde(default = "default_width")]
@@ -45,7 +48,13 @@ fn default_process_noise() -> f64 {
     0.05
 }
 fn default_fix_std() -> f64 {
-    0.1
+    0.01
+}
+/// Measured in the realistic simulator (calm, 180° turn, seeds 1–20, 15 s of tracking): with a
+/// constant 0.1 m a fix from 1 m weighed as little as one from 7.5 m, and the touchdown error was
+/// p50 0.17 / p95 0.29 m; with 0.01 m + 1.7° it is 0.08 / 0.14 m.
+fn default_fix_angle_std() -> f64 {
+    1.7
 }
 pub(super) fn default_fov() -> f64 {
     60.0
@@ -66,7 +75,7 @@ const MAX_STATE_AGE_S: f64 = 0.5;
 
 struct TrackerTask {
     camera: PinholeCamera,
-    fix_variance_m2: f64,
+    fix_noise: FixNoise,
     tracker: Tracker,
     platform: PlatformVelocityEstimator,
     last_fix_time_s: Option<f64>,
@@ -80,12 +89,8 @@ struct TrackerTask {
 impl TrackerTask {
     fn new(params: Params) -> Result<Self, TaskError> {
         let bad = |e: &dyn std::fmt::Display| TaskError::Params(e.to_string());
-        if !(params.fix_std_m.is_finite() && params.fix_std_m > 0.0) {
-            return Err(TaskError::Params(format!(
-                "fix_std_m must be > 0, got {}",
-                params.fix_std_m
-            )));
-        }
+        let fix_noise = FixNoise::new(params.fix_std_m, params.fix_angle_std_deg.to_radians())
+            .map_err(|e| bad(&e))?;
         let camera = PinholeCamera::from_fov(
             params.image_width_px,
             params.image_height_px,
@@ -106,7 +111,7 @@ impl TrackerTask {
         .map_err(|e| bad(&e))?;
         Ok(Self {
             camera,
-            fix_variance_m2: params.fix_std_m.powi(2),
+            fix_noise,
             tracker,
             platform: PlatformVelocityEstimator::new(PlatformVelocityConfig {
                 // Fixes come 2 s apart at the slowest detection rate (0.5 fps).
@@ -149,6 +154,7 @@ impl Task for TrackerTask {
             attitude: state.attitude,
             height_above_pad_m: state.height_above_pad_m,
             position_ned_m: state.position_ned_m,
+            velocity_ned_m_s: state.velocity_ned_m_s,
         });
         let now_s = ctx.now().as_secs_f64();
         let state_fresh = now_s - latest.stamp.as_secs_f64() <= MAX_STATE_AGE_S;
@@ -175,6 +181,7 @@ impl Task for TrackerTask {
                         attitude: state.attitude,
                         height_above_pad_m: state.height_above_pad_m,
                         position_ned_m: state.position_ned_m,
+                        velocity_ned_m_s: state.velocity_ned_m_s,
                     });
                 match pad_relative_to_uav_ned_m(
                     &self.camera,
@@ -187,10 +194,12 @@ impl Task for TrackerTask {
                         let capture_time_s = message.stamp.as_secs_f64();
                         // The tracker's state is UAV − platform: the pad's position negated.
                         let uav_relative = -pad_relative;
+                        let fix_variance_m2 =
+                            self.fix_noise.variance_m2(at_capture.height_above_pad_m);
                         let fix = VisionFix {
                             capture_time_s,
                             uav_relative_ned_m: uav_relative,
-                            covariance_m2: Matrix3::identity() * self.fix_variance_m2,
+                            covariance_m2: Matrix3::identity() * fix_variance_m2,
                         };
                         let outcome = self
                             .tracker
@@ -220,7 +229,9 @@ impl Task for TrackerTask {
                                 let _ = self.platform.update(&PlatformFix {
                                     time_s: capture_time_s,
                                     uav_relative_ned_m: uav_relative,
-                                    uav_velocity_ned_mps: state.velocity_ned_m_s,
+                                    horizontal_variance_m2: fix_variance_m2,
+                                    // As the fix: at the frame's capture.
+                                    uav_velocity_ned_mps: at_capture.velocity_ned_m_s,
                                     platform_yaw_rad: None,
                                 });
                             }
@@ -242,5 +253,41 @@ impl Task for TrackerTask {
             );
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn task(params: &str) -> Result<TrackerTask, TaskError> {
+        let table: toml::Table = toml::from_str(params).unwrap();
+        TrackerTask::new(crate::task::parse_params(&table)?)
+    }
+
+    #[test]
+    fn a_fix_is_trusted_more_the_lower_it_is_taken() {
+        let tracker = task("fix_std_m = 0.02\nfix_angle_std_deg = 2.0").unwrap();
+        let expected =
+            |height_m: f64| 0.02f64.powi(2) + (height_m * 2f64.to_radians().tan()).powi(2);
+        for height_m in [0.5, 7.5] {
+            assert!((tracker.fix_noise.variance_m2(height_m) - expected(height_m)).abs() < 1e-12);
+        }
+        let defaults = task("").unwrap();
+        assert!(defaults.fix_noise.variance_m2(1.0) < defaults.fix_noise.variance_m2(7.5) / 20.0);
+    }
+
+    #[test]
+    fn a_bad_fix_noise_is_named() {
+        for params in [
+            "fix_std_m = -0.1",
+            "fix_angle_std_deg = -1.0",
+            "fix_std_m = 0.0\nfix_angle_std_deg = 0.0",
+        ] {
+            let Err(TaskError::Params(message)) = task(params) else {
+                panic!("{params} was accepted");
+            };
+            assert!(message.contains("fix's noise"), "{message}");
+        }
     }
 }
