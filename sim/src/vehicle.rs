@@ -1012,6 +1012,14 @@ mod tests {
             r.run(altitude_m / 1.5 + 10.0);
             r
         }
+        /// Airborne and in Offboard, streaming a zero velocity setpoint.
+        fn offboard(altitude_m: f64) -> Self {
+            let mut r = Self::airborne(altitude_m);
+            r.stream(Vector3::zeros());
+            r.cmd(AutopilotCommand::SetMode(FlightMode::Offboard))
+                .unwrap();
+            r
+        }
         fn stream(&mut self, v: Vector3<f64>) {
             self.cmd(AutopilotCommand::VelocitySetpoint {
                 velocity_ned_m_s: v,
@@ -1039,10 +1047,7 @@ mod tests {
 
     #[test]
     fn velocity_step_converges_within_the_tilt_limit() {
-        let mut r = Run::airborne(10.0);
-        r.stream(Vector3::zeros());
-        r.cmd(AutopilotCommand::SetMode(FlightMode::Offboard))
-            .unwrap();
+        let mut r = Run::offboard(10.0);
         let start = r.t;
         let mut t90 = None;
         let max_tilt = VehicleParams::default().max_tilt_rad;
@@ -1068,10 +1073,7 @@ mod tests {
     #[test]
     fn terminal_speed_matches_the_drag_model() {
         let p = VehicleParams::default();
-        let mut r = Run::airborne(20.0);
-        r.stream(Vector3::zeros());
-        r.cmd(AutopilotCommand::SetMode(FlightMode::Offboard))
-            .unwrap();
+        let mut r = Run::offboard(20.0);
         // Full tilt north against an 8 N headwind force: m·g·tan(tilt) − 8 = c1·v + c2·v².
         let headwind = Vector3::new(-8.0, 0.0, 0.0);
         for _ in 0..(40.0 / DT) as usize {
@@ -1213,10 +1215,7 @@ mod tests {
     /// Offboard chase of the pad with a P controller, descending when over it; `aim_offset_m`
     /// aims beside the pad to miss it.
     fn land_on_moving_pad(aim_offset_m: Vector2<f64>) -> (Run, Touchdown, PadState) {
-        let mut r = Run::airborne(5.0);
-        r.stream(Vector3::zeros());
-        r.cmd(AutopilotCommand::SetMode(FlightMode::Offboard))
-            .unwrap();
+        let mut r = Run::offboard(5.0);
         let start = r.t;
         let mut touchdown_pad = None;
         for _ in 0..(60.0 / DT) as usize {
@@ -1266,10 +1265,7 @@ mod tests {
 
     #[test]
     fn a_pad_rising_into_a_descending_vehicle_is_a_landing_on_it() {
-        let mut r = Run::airborne(5.0);
-        r.stream(Vector3::zeros());
-        r.cmd(AutopilotCommand::SetMode(FlightMode::Offboard))
-            .unwrap();
+        let mut r = Run::offboard(5.0);
         let below = r.v.position_ned_m().xy();
         let pad_at = |top_down_m: f64| PadState {
             centre_ned_m: Vector3::new(below.x, below.y, top_down_m),
