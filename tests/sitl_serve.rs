@@ -88,6 +88,11 @@ fn bad_serve_options_are_named() {
             "--max-time-s must be a positive",
         ),
         (&["--mavlink-port", "99999"][..], "99999"),
+        // The reference config's camera hangs in a gimbal; PX4's SIH reports none.
+        (
+            &["--vehicle", "px4-sih:0", "--no-video"][..],
+            "PX4 SIH flies no camera gimbal",
+        ),
     ] {
         let mut all = vec!["sim", "--serve"];
         all.extend_from_slice(args);
@@ -195,6 +200,13 @@ fn the_real_px4_lands_on_the_moving_pad_the_world_renders() {
     let Some(px4) = Px4::start(6) else { return };
     let dir = tempfile::tempdir().unwrap();
     let config = short_mission(dir.path(), 10.0);
+    // SIH has no gimbal: the camera is fixed to the body, as the world renders it from PX4's pose.
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(
+        &config,
+        text.replace("camera_mount = \"gimbal\"", "camera_mount = \"body\""),
+    )
+    .unwrap();
     let video_port = free_udp_port().to_string();
     let world = qosrt_spawn(
         "sim",

@@ -12,15 +12,16 @@ use crate::mission::{MissionPlan, MissionRunner, RunnerError, RunnerOptions};
 use crate::registry::PluginRegistry;
 use crate::scheduler::{RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats};
 use crate::topics::{CameraFrame, VehicleState};
+use algorithms::estimation::camera_mount;
 use algorithms::estimation::projection::Attitude;
 use algorithms::vision::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::landing_marker::LandingMarkerLayout;
 use algorithms::vision::render::{render, RenderOptions, Scene, Texture};
 use mavlink::dialects::common::{
-    MavAutopilot, MavLandedState, MavMessage, MavModeFlag, MavState, MavType, MavVtolState,
-    ATTITUDE_DATA, BATTERY_STATUS_DATA, EXTENDED_SYS_STATE_DATA, HEARTBEAT_DATA,
-    LOCAL_POSITION_NED_DATA,
+    GimbalDeviceFlags, MavAutopilot, MavLandedState, MavMessage, MavModeFlag, MavState, MavType,
+    MavVtolState, ATTITUDE_DATA, BATTERY_STATUS_DATA, EXTENDED_SYS_STATE_DATA,
+    GIMBAL_DEVICE_ATTITUDE_STATUS_DATA, HEARTBEAT_DATA, LOCAL_POSITION_NED_DATA,
 };
 use mavlink::{MavHeader, MavlinkVersion};
 use nalgebra::Vector3;
@@ -231,6 +232,17 @@ impl SyntheticVehicle {
             yaw: attitude.yaw_rad as f32,
             ..Default::default()
         }))?;
+        if let Some(camera) = state.gimbal_attitude {
+            let q = camera_mount::gimbal_quaternion(&camera).map(|c| c as f32);
+            self.message(&MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(
+                GIMBAL_DEVICE_ATTITUDE_STATUS_DATA {
+                    time_boot_ms,
+                    q,
+                    flags: GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME,
+                    ..Default::default()
+                },
+            ))?;
+        }
         let position = state.position_ned_m.unwrap_or_else(Vector3::zeros);
         self.message(&MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA {
             time_boot_ms,
@@ -283,6 +295,9 @@ pub(crate) fn hovering_vehicle() -> VehicleState {
         // The pad lies on the ground in the synthetic frames.
         position_ned_m: Some(Vector3::new(0.0, 0.0, -HOVER_HEIGHT_M)),
         landed: false,
+        // A gimbal, for a config whose camera is on one, pointing the camera where the
+        // synthetic frames were rendered from.
+        gimbal_attitude: Some(Attitude::new(roll, pitch, yaw)),
         offboard: true,
     }
 }

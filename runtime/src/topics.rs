@@ -56,6 +56,9 @@ pub struct VehicleState {
     pub position_ned_m: Option<nalgebra::Vector3<f64>>,
     /// The autopilot reports the vehicle on the ground.
     pub landed: bool,
+    /// The camera gimbal's attitude (GIMBAL_DEVICE_ATTITUDE_STATUS, as
+    /// [`algorithms::estimation::camera_mount`] describes a camera), while it reports.
+    pub gimbal_attitude: Option<algorithms::estimation::projection::Attitude>,
     /// The autopilot's last heartbeat says it flies the companion's setpoints (PX4 OFFBOARD,
     /// ArduPilot GUIDED).
     pub offboard: bool,

@@ -9,7 +9,8 @@
 //!
 //! Rates follow PX4's onboard-link defaults, on the snapshot's clock: HEARTBEAT 1 Hz, ATTITUDE
 //! and LOCAL_POSITION_NED 50 Hz, DISTANCE_SENSOR 20 Hz, BATTERY_STATUS and SYS_STATUS 2 Hz,
-//! EXTENDED_SYS_STATE 5 Hz.
+//! EXTENDED_SYS_STATE 5 Hz; a vehicle with a camera gimbal adds GIMBAL_DEVICE_ATTITUDE_STATUS
+//! with each ATTITUDE.
 //!
 //! Lockstep (see `runtime::link::link`): `publish` ends its batch with
 //! TIMESYNC { tc1: 0, ts1: t_ns }; `receive_lockstep(t_ns)` reads the runtime's commands until
@@ -18,13 +19,15 @@
 //! so a simulated link loss still runs deterministically.
 
 use crate::flight::{AutopilotCommand, CommandRejected, FlightMode, LandedState, VehicleSnapshot};
+use algorithms::estimation::camera_mount::gimbal_quaternion;
 use mavlink::dialects::common::{
-    MavAutopilot, MavBatteryFunction, MavBatteryType, MavCmd, MavDistanceSensor, MavFrame,
-    MavLandedState, MavMessage, MavModeFlag, MavResult, MavSensorOrientation, MavState,
+    GimbalDeviceFlags, MavAutopilot, MavBatteryFunction, MavBatteryType, MavCmd, MavDistanceSensor,
+    MavFrame, MavLandedState, MavMessage, MavModeFlag, MavResult, MavSensorOrientation, MavState,
     MavSysStatusSensor, MavType, MavVtolState, PositionTargetTypemask, ATTITUDE_DATA,
     BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_LONG_DATA, DISTANCE_SENSOR_DATA,
-    EXTENDED_SYS_STATE_DATA, GLOBAL_POSITION_INT_DATA, HEARTBEAT_DATA, LOCAL_POSITION_NED_DATA,
-    SET_POSITION_TARGET_LOCAL_NED_DATA, SYS_STATUS_DATA, TIMESYNC_DATA,
+    EXTENDED_SYS_STATE_DATA, GIMBAL_DEVICE_ATTITUDE_STATUS_DATA, GLOBAL_POSITION_INT_DATA,
+    HEARTBEAT_DATA, LOCAL_POSITION_NED_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA, SYS_STATUS_DATA,
+    TIMESYNC_DATA,
 };
 use mavlink::{MavHeader, MavlinkVersion};
 use nalgebra::Vector3;
@@ -266,6 +269,11 @@ impl MavlinkAutopilot {
         }
         if take_due(&mut due.attitude_s, time_s, 1.0 / self.rates.attitude_hz) {
             self.send(&attitude(snapshot, time_boot_ms))?;
+            // A gimbal streams its attitude as fast as the vehicle's: the camera's frames are
+            // projected with it.
+            if let Some(message) = gimbal_attitude(snapshot, time_boot_ms) {
+                self.send(&message)?;
+            }
         }
         if take_due(&mut due.position_s, time_s, 1.0 / self.rates.position_hz) {
             self.send(&local_position(snapshot, time_boot_ms))?;
@@ -560,6 +568,27 @@ fn attitude(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> MavMessage {
         pitchspeed: snapshot.body_rates_rad_s.y as f32,
         yawspeed: snapshot.body_rates_rad_s.z as f32,
     })
+}
+
+/// GIMBAL_DEVICE_ATTITUDE_STATUS for the vehicle's gimbal, its quaternion in the earth frame.
+fn gimbal_attitude(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> Option<MavMessage> {
+    let camera = snapshot.gimbal_attitude?;
+    let q = gimbal_quaternion(&camera).map(|c| c as f32);
+    Some(MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(
+        GIMBAL_DEVICE_ATTITUDE_STATUS_DATA {
+            time_boot_ms,
+            q,
+            angular_velocity_x: f32::NAN,
+            angular_velocity_y: f32::NAN,
+            angular_velocity_z: f32::NAN,
+            flags: GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_ROLL_LOCK
+                | GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+                | GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME,
+            delta_yaw: f32::NAN,
+            delta_yaw_velocity: f32::NAN,
+            ..Default::default()
+        },
+    ))
 }
 
 fn local_position(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> MavMessage {

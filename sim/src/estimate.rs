@@ -110,6 +110,12 @@ impl EstimatedTelemetry {
         out.attitude.roll_rad += attitude_error[0];
         out.attitude.pitch_rad += attitude_error[1];
         out.attitude.yaw_rad += attitude_error[2];
+        // The gimbal's IMU is of the vehicle's class, and its heading is the autopilot's.
+        if let Some(gimbal) = out.gimbal_attitude.as_mut() {
+            gimbal.roll_rad += attitude_error[0];
+            gimbal.pitch_rad += attitude_error[1];
+            gimbal.yaw_rad += attitude_error[2];
+        }
         let r = self.rangefinder;
         out.rangefinder_m = truth.rangefinder_m.and_then(|range_m| {
             if self.rng.next_f64() < r.dropout_probability {
@@ -147,6 +153,7 @@ mod tests {
             mode: FlightMode::Offboard,
             landed_state: LandedState::InAir,
             rangefinder_m: Some(5.0),
+            gimbal_attitude: None,
             battery: BatteryReading {
                 voltage_v: 16.0,
                 current_a: 10.0,

@@ -86,4 +86,8 @@ pub struct VehicleSnapshot {
     /// along the body's down axis; `None` outside its range.
     pub rangefinder_m: Option<f64>,
     pub battery: BatteryReading,
+    /// The camera gimbal's attitude (as [`algorithms::estimation::camera_mount`] describes a
+    /// camera), when the vehicle carries one; its autopilot then streams
+    /// GIMBAL_DEVICE_ATTITUDE_STATUS.
+    pub gimbal_attitude: Option<Attitude>,
 }

@@ -6,6 +6,7 @@ pub mod autopilot;
 pub mod camera;
 pub mod estimate;
 pub mod flight;
+pub mod gimbal;
 pub mod hazard_dataset;
 pub mod outcome;
 pub mod power;

@@ -487,6 +487,7 @@ impl Multirotor {
             landed_state: self.landed_state(),
             rangefinder_m: self.rangefinder_m(),
             battery,
+            gimbal_attitude: None,
         }
     }
 

@@ -28,6 +28,7 @@ use sim::autopilot::MavlinkAutopilot;
 use sim::autopilot::StreamRates;
 use sim::camera::{PendingFrame, SimCamera, SimCameraConfig, VehiclePose};
 use sim::estimate::EstimatedTelemetry;
+use sim::gimbal::{Gimbal, GimbalError, GimbalParams};
 use sim::outcome::{LocalisationAccumulator, QosChange, SimOutcome, TrackSample};
 use sim::power::{RotorPowerModel, SimBattery, SimPack};
 use sim::realism::{CameraRealism, DriverBehaviour, PadMotion, Realism};
@@ -221,6 +222,7 @@ pub fn simulate(
         std::collections::VecDeque::new();
     let mut latency_rng = SplitMix64::new(options.seed ^ 0x006c_6174_656e_6379);
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
+    let mut gimbal = camera_gimbal(model).map_err(|e| setup(&e))?;
     // The hazards stand beside the track the tractor will drive while the CNN watches.
     let watch_s: f64 = model.config.mission.phases[1..model.config.mission.phases.len() - 1]
         .iter()
@@ -396,6 +398,7 @@ pub fn simulate(
                     velocity_ned_m_s: vehicle.velocity_ned_m_s(),
                     body_rates_rad_s: vehicle.body_rates_rad_s(),
                 };
+                let pose = gimbal.as_ref().map_or(pose, |g| g.camera_pose(&pose));
                 // Rendered on other threads during the frame's latency; the loop goes on.
                 match camera.capture_deferred(time_s, &pose, &scene) {
                     Ok(frame) => {
@@ -455,7 +458,9 @@ pub fn simulate(
         }
 
         // Autopilot → runtime → autopilot: in lockstep, or as the datagrams come.
-        let snapshot = estimate.report(&vehicle.snapshot(time_s, battery.reading()));
+        let mut truth = vehicle.snapshot(time_s, battery.reading());
+        truth.gimbal_attitude = gimbal.as_ref().map(|g| g.camera_attitude(&truth.attitude));
+        let snapshot = estimate.report(&truth);
         let t_ns = autopilot.publish(&snapshot).map_err(|e| link_error(&e))?;
         let lockstep = (!options.real_time).then_some(t_ns);
         let step = runner
@@ -555,6 +560,9 @@ pub fn simulate(
             vehicle
                 .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
                 .map_err(|e| setup(&e))?;
+            if let Some(gimbal) = gimbal.as_mut() {
+                gimbal.step(PHYSICS_DT_S, &vehicle.attitude());
+            }
         }
         let flight_w = flight_power_w(&vehicle, &mut wind, &rotors, time_s);
         // The companion draws what the tasks of the phase in flight cost at their levels.
@@ -713,6 +721,18 @@ pub(crate) fn camera_config(model: &MissionModel) -> SimCameraConfig {
         config.height_px = height as usize;
     }
     config
+}
+
+/// The camera's gimbal, when the tracker's params put the camera on one
+/// (`camera_mount = "gimbal"`): the world then carries one and its autopilot reports it.
+pub(crate) fn camera_gimbal(model: &MissionModel) -> Result<Option<Gimbal>, GimbalError> {
+    let on_gimbal = model.config.tasks.iter().any(|task| {
+        matches!(task.plugin.as_str(), "kalman_tracker" | "hybrid_tracking")
+            && task.params.get("camera_mount").and_then(|v| v.as_str()) == Some("gimbal")
+    });
+    on_gimbal
+        .then(|| Gimbal::new(GimbalParams::default()))
+        .transpose()
 }
 
 /// The sequencer's plan from the config (its tracking time already the one to fly), with the

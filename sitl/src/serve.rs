@@ -31,8 +31,8 @@ use sim::vehicle::{Multirotor, VehicleParams};
 use sim::wind::Wind;
 
 use crate::mission::{
-    camera_config, flight_power_w, hover_power_w, pad_pose, wind_config, WindKind, PHYSICS_DT_S,
-    TICK_S,
+    camera_config, camera_gimbal, flight_power_w, hover_power_w, pad_pose, wind_config, WindKind,
+    PHYSICS_DT_S, TICK_S,
 };
 use crate::px4_sih::SihListener;
 
@@ -223,6 +223,13 @@ pub fn serve(
         camera_config.rate_fps,
     );
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
+    let mut gimbal = camera_gimbal(model).map_err(|e| setup(&e))?;
+    if px4 && gimbal.is_some() {
+        // SIH streams PX4's own telemetry: no gimbal reports the camera's attitude.
+        return Err(setup(
+            &"PX4 SIH flies no camera gimbal: set the tracker's camera_mount = \"body\"",
+        ));
+    }
     let mut video = open_video(options.video_port, width_px, height_px, rate_fps)?;
 
     let mut flyer = match options.vehicle {
@@ -288,7 +295,9 @@ pub fn serve(
                 battery,
                 ..
             } => {
-                autopilot.publish(&vehicle.snapshot(time_s, battery.reading()))?;
+                let mut truth = vehicle.snapshot(time_s, battery.reading());
+                truth.gimbal_attitude = gimbal.as_ref().map(|g| g.camera_attitude(&truth.attitude));
+                autopilot.publish(&truth)?;
                 apply_commands(vehicle, autopilot, time_s)?;
                 Some(VehiclePose {
                     position_ned_m: vehicle.position_ned_m(),
@@ -341,7 +350,8 @@ pub fn serve(
             scene
                 .set_pad_pose(pad_pose(&tractor))
                 .map_err(|e| setup(&e))?;
-            match camera.capture_frame(time_s, &pose, &scene) {
+            let camera_pose = gimbal.as_ref().map_or(pose, |g| g.camera_pose(&pose));
+            match camera.capture_frame(time_s, &camera_pose, &scene) {
                 Ok(frame) => {
                     frames_rendered += 1;
                     // Captured at the tick's instant on the wall clock, however late the
@@ -376,6 +386,9 @@ pub fn serve(
                 vehicle
                     .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
                     .map_err(|e| setup(&e))?;
+                if let Some(gimbal) = gimbal.as_mut() {
+                    gimbal.step(PHYSICS_DT_S, &vehicle.attitude());
+                }
             }
         }
         let touchdown = match &mut flyer {

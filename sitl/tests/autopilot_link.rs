@@ -35,6 +35,7 @@ fn snapshot(tick: u64) -> VehicleSnapshot {
             consumed_mah: 420.0 + time_s,
             remaining_fraction: 0.8,
         },
+        gimbal_attitude: None,
     }
 }
 
@@ -88,6 +89,43 @@ fn autopilot_telemetry_arrives_and_maps() {
     assert_eq!(status.custom_mode, 6 << 16);
     assert!(status.armed);
     assert_eq!(link.status(), LinkStatus::Connected);
+}
+
+/// A vehicle with a camera gimbal: GIMBAL_DEVICE_ATTITUDE_STATUS with each ATTITUDE, and the
+/// runtime reads the camera's attitude from it (to f32 precision).
+#[test]
+fn a_gimbal_reports_the_cameras_attitude_beside_the_vehicles() {
+    let (mut link, mut autopilot) = pair(false, LinkConfig::default());
+    let camera = Attitude::new(0.02, -0.01, 0.3);
+    let mut sent = 0;
+    for tick in 0..50 {
+        let mut snap = snapshot(tick);
+        snap.gimbal_attitude = Some(camera);
+        autopilot.publish(&snap).unwrap();
+        sent += 1;
+    }
+    let mut state = None;
+    poll_until(&mut link, 1.0, |update| {
+        state = update.vehicle_state.or(state);
+        state.is_some_and(|s| s.gimbal_attitude.is_some())
+    });
+    let reported = state.unwrap().gimbal_attitude.unwrap();
+    for (got, want) in [
+        (reported.roll_rad, camera.roll_rad),
+        (reported.pitch_rad, camera.pitch_rad),
+        (reported.yaw_rad, camera.yaw_rad),
+    ] {
+        assert!((got - want).abs() < 1e-6, "{reported:?}");
+    }
+    // One per ATTITUDE: 50 ticks at 50 Hz, on top of the telemetry without a gimbal.
+    let without = {
+        let (_link, mut plain) = pair(false, LinkConfig::default());
+        for tick in 0..sent {
+            plain.publish(&snapshot(tick)).unwrap();
+        }
+        plain.stats().messages_sent
+    };
+    assert_eq!(autopilot.stats().messages_sent, without + 50);
 }
 
 #[test]

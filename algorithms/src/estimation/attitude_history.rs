@@ -22,6 +22,9 @@ pub struct AttitudeSample {
     /// Local NED position, when the autopilot reports one.
     pub position_ned_m: Option<Vector3<f64>>,
     pub velocity_ned_m_s: Vector3<f64>,
+    /// The camera gimbal's attitude, when the vehicle reports one
+    /// ([`super::camera_mount::CameraMount::Gimbal`]).
+    pub gimbal_attitude: Option<Attitude>,
 }
 
 /// A bounded window of samples in time order.
@@ -74,14 +77,14 @@ impl AttitudeHistory {
         let (a, b) = (&self.samples[after - 1], &self.samples[after]);
         let t = (time_s - a.time_s) / (b.time_s - a.time_s);
         let lerp = |x: f64, y: f64| x + (y - x) * t;
-        let yaw_step = wrap_pi(b.attitude.yaw_rad - a.attitude.yaw_rad);
+        let nearest = |p: Option<Attitude>, q: Option<Attitude>| if t < 0.5 { p } else { q };
         Some(AttitudeSample {
             time_s,
-            attitude: Attitude::new(
-                lerp(a.attitude.roll_rad, b.attitude.roll_rad),
-                lerp(a.attitude.pitch_rad, b.attitude.pitch_rad),
-                wrap_pi(a.attitude.yaw_rad + yaw_step * t),
-            ),
+            attitude: lerp_attitude(&a.attitude, &b.attitude, t),
+            gimbal_attitude: match (a.gimbal_attitude, b.gimbal_attitude) {
+                (Some(p), Some(q)) => Some(lerp_attitude(&p, &q, t)),
+                (p, q) => nearest(p, q),
+            },
             height_above_pad_m: lerp(a.height_above_pad_m, b.height_above_pad_m),
             velocity_ned_m_s: a.velocity_ned_m_s + (b.velocity_ned_m_s - a.velocity_ned_m_s) * t,
             position_ned_m: match (a.position_ned_m, b.position_ned_m) {
@@ -96,6 +99,17 @@ impl AttitudeHistory {
             },
         })
     }
+}
+
+/// Between two attitudes, a fraction `t` of the way (yaw the short way across ±π).
+fn lerp_attitude(a: &Attitude, b: &Attitude, t: f64) -> Attitude {
+    let lerp = |x: f64, y: f64| x + (y - x) * t;
+    let yaw_step = wrap_pi(b.yaw_rad - a.yaw_rad);
+    Attitude::new(
+        lerp(a.roll_rad, b.roll_rad),
+        lerp(a.pitch_rad, b.pitch_rad),
+        wrap_pi(a.yaw_rad + yaw_step * t),
+    )
 }
 
 fn wrap_pi(angle_rad: f64) -> f64 {
@@ -114,6 +128,8 @@ mod tests {
             height_above_pad_m: height_m,
             position_ned_m: Some(Vector3::new(time_s, -2.0 * time_s, -height_m)),
             velocity_ned_m_s: Vector3::new(1.0, 2.0 * time_s, 0.0),
+            // A gimbal holding the camera at a tenth of the pitch, on the heading.
+            gimbal_attitude: Some(Attitude::new(0.1 * pitch_rad, 0.0, yaw_rad)),
         }
     }
 
@@ -143,8 +159,26 @@ mod tests {
         let yaw = middle.attitude.yaw_rad;
         let expected = 3.1 + 0.25 * (2.0 * std::f64::consts::PI - 6.2);
         assert!((yaw - expected).abs() < 1e-9, "{yaw}");
+        // The gimbal's attitude the same way.
+        let gimbal = middle.gimbal_attitude.unwrap();
+        assert!((gimbal.roll_rad - 0.0025).abs() < 1e-12, "{gimbal:?}");
+        assert!((gimbal.yaw_rad - expected).abs() < 1e-9, "{gimbal:?}");
         assert_eq!(history.at(9.0).unwrap().attitude.pitch_rad, 0.0);
         assert_eq!(history.at(11.0).unwrap().attitude.pitch_rad, 0.1);
+    }
+
+    /// A gimbal that begins or stops reporting between two samples: the nearest sample's word.
+    #[test]
+    fn a_gimbal_attitude_on_one_side_only_is_the_nearer_sides() {
+        let mut history = AttitudeHistory::new(1.0);
+        history.push(AttitudeSample {
+            gimbal_attitude: None,
+            ..sample(0.0, 0.0, 0.0, 5.0)
+        });
+        history.push(sample(0.02, 0.2, 0.0, 5.0));
+        assert_eq!(history.at(0.005).unwrap().gimbal_attitude, None);
+        let later = history.at(0.015).unwrap().gimbal_attitude.unwrap();
+        assert!((later.roll_rad - 0.02).abs() < 1e-12, "{later:?}");
     }
 
     #[test]

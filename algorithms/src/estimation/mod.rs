@@ -2,6 +2,7 @@
 //! platform's velocity (seed 003, §IV-A and §IV-B).
 
 pub mod attitude_history;
+pub mod camera_mount;
 pub mod kalman;
 pub mod pad_height;
 pub mod platform_velocity;

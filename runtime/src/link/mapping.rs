@@ -26,16 +26,17 @@
 use crate::telemetry::BatteryTelemetry;
 use crate::topics::{LandingSetpoint, VehicleState};
 use algorithms::control::landing::LandingMode;
+use algorithms::estimation::camera_mount::camera_attitude_of_gimbal;
 use algorithms::estimation::pad_height::PadHeightEstimator;
 use algorithms::estimation::projection::Attitude;
 use mavlink::dialects::common::{
-    MavAutopilot, MavCmd, MavFrame, MavLandedState, MavMessage, MavModeFlag, MavResult,
-    MavSensorOrientation, MavState, MavType, PositionTargetTypemask, ATTITUDE_DATA,
-    BATTERY_STATUS_DATA, COMMAND_LONG_DATA, DISTANCE_SENSOR_DATA, HEARTBEAT_DATA,
-    LANDING_TARGET_DATA, LOCAL_POSITION_NED_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA,
-    SYS_STATUS_DATA,
+    GimbalDeviceFlags, MavAutopilot, MavCmd, MavFrame, MavLandedState, MavMessage, MavModeFlag,
+    MavResult, MavSensorOrientation, MavState, MavType, PositionTargetTypemask, ATTITUDE_DATA,
+    BATTERY_STATUS_DATA, COMMAND_LONG_DATA, DISTANCE_SENSOR_DATA,
+    GIMBAL_DEVICE_ATTITUDE_STATUS_DATA, HEARTBEAT_DATA, LANDING_TARGET_DATA,
+    LOCAL_POSITION_NED_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA, SYS_STATUS_DATA,
 };
-use nalgebra::Vector3;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 /// PX4 main modes (px4_custom_mode.h `PX4_CUSTOM_MAIN_MODE_*`).
 pub const PX4_MAIN_MODE_POSCTL: u8 = 3;
@@ -56,6 +57,9 @@ pub const ONBOARD_COMPUTER_COMPONENT_ID: u8 = 191;
 const UINT16_UNKNOWN: u16 = u16::MAX;
 /// A rangefinder reading older than this no longer says where the pad is.
 pub const RANGEFINDER_STALE_S: f64 = 0.5;
+/// A gimbal attitude older than this is not used: a frame is not projected with where the
+/// camera pointed half a second ago.
+pub const GIMBAL_STALE_S: f64 = 0.5;
 /// Velocity samples further apart than this are not differenced (a gap, not a rate).
 const MAX_ACCELERATION_DT_S: f64 = 0.5;
 
@@ -296,6 +300,8 @@ pub struct Applied {
 #[derive(Debug, Clone, Default)]
 pub struct TelemetryState {
     attitude: Option<Attitude>,
+    /// The camera gimbal's attitude, with the runtime time it arrived.
+    gimbal_attitude: Option<(Attitude, f64)>,
     position_ned_m: Option<Vector3<f64>>,
     velocity_ned_m_s: Option<Vector3<f64>>,
     acceleration_ned_m_s2: Vector3<f64>,
@@ -331,6 +337,12 @@ impl TelemetryState {
             MavMessage::ATTITUDE(attitude) => {
                 self.attitude = Some(attitude_from(attitude));
                 applied.vehicle_state = self.position_ned_m.is_some();
+            }
+            MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(status) => {
+                // Unknown (NaN) or in the vehicle's frame before its heading is known: none.
+                self.gimbal_attitude =
+                    gimbal_attitude_from(status, self.attitude.as_ref()).map(|a| (a, now_s));
+                applied.vehicle_state = self.attitude.is_some() && self.position_ned_m.is_some();
             }
             MavMessage::LOCAL_POSITION_NED(position) => {
                 self.apply_position(position);
@@ -436,6 +448,10 @@ impl TelemetryState {
             height_above_pad_m,
             position_ned_m: Some(position),
             landed: self.landed,
+            gimbal_attitude: self
+                .gimbal_attitude
+                .filter(|(_, at_s)| now_s - at_s <= GIMBAL_STALE_S)
+                .map(|(attitude, _)| attitude),
             offboard: self
                 .autopilot
                 .is_some_and(|status| status.mode == AutopilotMode::Offboard),
@@ -458,6 +474,29 @@ impl TelemetryState {
     pub fn home_amsl_m(&self) -> Option<f64> {
         self.home_amsl_m
     }
+}
+
+/// The camera's attitude from GIMBAL_DEVICE_ATTITUDE_STATUS. Its quaternion's yaw is in the
+/// earth frame or relative to the vehicle's heading, as its flags say (without either frame
+/// flag, as the message's definition keeps for old gimbals: earth with YAW_LOCK, else the
+/// vehicle's); a vehicle-frame yaw needs the vehicle's attitude.
+fn gimbal_attitude_from(
+    status: &GIMBAL_DEVICE_ATTITUDE_STATUS_DATA,
+    vehicle: Option<&Attitude>,
+) -> Option<Attitude> {
+    let flags = status.flags;
+    let earth_frame = flags.contains(GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME)
+        || (!flags.contains(GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME)
+            && flags.contains(GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_LOCK));
+    let [w, x, y, z] = status.q.map(f64::from);
+    let q_earth = if earth_frame {
+        [w, x, y, z]
+    } else {
+        let heading = UnitQuaternion::from_euler_angles(0.0, 0.0, vehicle?.yaw_rad);
+        let q = heading * UnitQuaternion::new_unchecked(Quaternion::new(w, x, y, z));
+        [q.w, q.i, q.j, q.k]
+    };
+    camera_attitude_of_gimbal(q_earth)
 }
 
 fn attitude_from(attitude: &ATTITUDE_DATA) -> Attitude {
@@ -985,6 +1024,73 @@ mod tests {
             "{}",
             height_m(&state)
         );
+    }
+
+    #[test]
+    fn the_gimbals_attitude_in_either_yaw_frame_until_it_goes_stale() {
+        // A camera held looking straight down, its image top towards `heading`: the gimbal's
+        // quaternion Rz(heading)·Ry(−90°), multiplied out by hand.
+        let looking_down = |heading_rad: f64| {
+            let k = std::f64::consts::FRAC_1_SQRT_2;
+            let (s, c) = (heading_rad / 2.0).sin_cos();
+            [k * c, k * s, -k * c, k * s].map(|v| v as f32)
+        };
+        let status = |q: [f32; 4], flags| {
+            MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(GIMBAL_DEVICE_ATTITUDE_STATUS_DATA {
+                q,
+                flags,
+                ..Default::default()
+            })
+        };
+        let mut state = TelemetryState::new();
+        state.apply(
+            &MavMessage::ATTITUDE(ATTITUDE_DATA {
+                roll: 0.3,
+                yaw: 1.2,
+                ..Default::default()
+            }),
+            0.0,
+        );
+        state.apply(
+            &MavMessage::LOCAL_POSITION_NED(LOCAL_POSITION_NED_DATA::default()),
+            0.0,
+        );
+        assert_eq!(state.vehicle_state(0.0).unwrap().gimbal_attitude, None);
+        let close = |a: Attitude, heading: f64| {
+            a.roll_rad.abs() < 1e-6
+                && a.pitch_rad.abs() < 1e-6
+                && (a.yaw_rad - heading).abs() < 1e-6
+        };
+        let earth = GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME;
+        assert!(
+            state
+                .apply(&status(looking_down(1.5), earth), 0.0)
+                .vehicle_state
+        );
+        let camera = state.vehicle_state(0.0).unwrap().gimbal_attitude.unwrap();
+        assert!(close(camera, 1.5), "{camera:?}");
+        // Relative to the vehicle's heading (1.2 rad): 0.3 rad more.
+        let vehicle_frame = GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME;
+        state.apply(&status(looking_down(0.3), vehicle_frame), 0.1);
+        let camera = state.vehicle_state(0.1).unwrap().gimbal_attitude.unwrap();
+        assert!(close(camera, 1.5), "{camera:?}");
+        // Without a frame flag: earth with YAW_LOCK (old gimbals), else the vehicle's.
+        state.apply(&status(looking_down(0.3), GimbalDeviceFlags::empty()), 0.2);
+        let camera = state.vehicle_state(0.2).unwrap().gimbal_attitude.unwrap();
+        assert!(close(camera, 1.5), "{camera:?}");
+        let lock = GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_LOCK;
+        state.apply(&status(looking_down(0.3), lock), 0.3);
+        let camera = state.vehicle_state(0.3).unwrap().gimbal_attitude.unwrap();
+        assert!(close(camera, 0.3), "{camera:?}");
+        // A gimbal that stops reporting is not used past GIMBAL_STALE_S…
+        assert!(state
+            .vehicle_state(0.3 + GIMBAL_STALE_S + 0.01)
+            .unwrap()
+            .gimbal_attitude
+            .is_none());
+        // …nor one that reports no attitude (MAVLink's NaN).
+        state.apply(&status([f32::NAN; 4], earth), 1.0);
+        assert_eq!(state.vehicle_state(1.0).unwrap().gimbal_attitude, None);
     }
 
     #[test]

@@ -306,6 +306,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 height_above_pad_m: state.height_above_pad_m,
                 position_ned_m: state.position_ned_m,
                 velocity_ned_m_s: state.velocity_ned_m_s,
+                gimbal_attitude: state.gimbal_attitude,
             });
         }
         if let Some(status) = update.autopilot {

@@ -19,6 +19,7 @@ use crate::topics::{
     CameraFrame, HazardDetection, HazardReport, RelativeState, VehicleState, CAMERA_FRAME, HAZARDS,
     RELATIVE_STATE, VEHICLE_STATE,
 };
+use algorithms::estimation::camera_mount::CameraMount;
 use algorithms::estimation::projection::{pad_relative_to_uav_ned_m, Attitude};
 use algorithms::vision::camera::PinholeCamera;
 use algorithms::vision::yolo::{
@@ -85,6 +86,9 @@ struct Params {
     /// The downward camera, to place detections on the ground.
     #[serde(default = "default_fov")]
     camera_horizontal_fov_deg: f64,
+    /// As the tracker's: "body" or "gimbal" (detections placed with the gimbal's attitude).
+    #[serde(default)]
+    camera_mount: CameraMount,
     /// At most this many detections per frame are reported, most confident first.
     #[serde(default = "default_max_detections")]
     max_detections: usize,
@@ -153,6 +157,7 @@ pub struct HazardCnnTask {
     confidence_threshold: f64,
     iou_threshold: f64,
     horizontal_fov_rad: f64,
+    camera_mount: CameraMount,
     max_detections: usize,
     min_height_m: f64,
     pad_exclusion_radius_m: f64,
@@ -243,6 +248,7 @@ impl HazardCnnTask {
             confidence_threshold: params.confidence_threshold,
             iou_threshold: params.iou_threshold,
             horizontal_fov_rad: fov.to_radians(),
+            camera_mount: params.camera_mount,
             max_detections: params.max_detections,
             min_height_m: params.min_height_m,
             pad_exclusion_radius_m: params.pad_exclusion_radius_m,
@@ -396,11 +402,19 @@ impl Task for HazardCnnTask {
         // The vehicle as it was when the frame was exposed (the runner interpolates it from
         // telemetry); as it is now when the frame came without it. A box is placed with it:
         // in gusts the vehicle turns by degrees between the exposure and this step.
+        let mount = self.camera_mount;
         let at_capture = frame
             .value
             .vehicle_at_capture
-            .map(|s| (s.attitude, s.position_ned_m))
-            .or_else(|| state.as_ref().map(|s| (s.attitude, s.position_ned_m)));
+            .map(|s| (s.attitude, s.gimbal_attitude, s.position_ned_m))
+            .or_else(|| {
+                state
+                    .as_ref()
+                    .map(|s| (s.attitude, s.gimbal_attitude, s.position_ned_m))
+            })
+            .and_then(|(attitude, gimbal, position)| {
+                Some((mount.camera_attitude(&attitude, gimbal.as_ref())?, position))
+            });
         let detections: Vec<HazardDetection> = detections
             .into_iter()
             .map(|d| {
@@ -619,6 +633,7 @@ mod tests {
             height_above_pad_m: 9.0,
             position_ned_m: Some(Vector3::new(5.0, -3.0, -10.0)),
             landed: false,
+            gimbal_attitude: None,
             offboard: true,
         };
         let (cx, cy) = (camera.cx_px, camera.cy_px);
@@ -676,6 +691,7 @@ mod tests {
                     height_above_pad_m: height_m,
                     position_ned_m: Some(Vector3::new(0.0, 0.0, -height_m)),
                     landed: false,
+                    gimbal_attitude: None,
                     offboard: true,
                 },
             );

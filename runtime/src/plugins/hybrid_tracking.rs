@@ -1103,6 +1103,7 @@ mod tests {
                     height_above_pad_m: c.autopilot_height_m,
                     position_ned_m: Some(c.uav_at(t)),
                     landed: false,
+                    gimbal_attitude: None,
                     offboard: true,
                 },
             );

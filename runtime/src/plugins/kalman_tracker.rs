@@ -9,6 +9,7 @@ use crate::topics::{
     MarkerObservation, RelativeState, VehicleState, LANDING_MARKER, RELATIVE_STATE, VEHICLE_STATE,
 };
 use algorithms::estimation::attitude_history::{AttitudeHistory, AttitudeSample};
+use algorithms::estimation::camera_mount::CameraMount;
 use algorithms::estimation::kalman::{FixOutcome, MotionInput, Tracker, TrackerConfig, VisionFix};
 use algorithms::estimation::platform_velocity::{
     PlatformFix, PlatformVelocityConfig, PlatformVelocityEstimator,
@@ -42,6 +43,10 @@ struct Params {
     image_width_px: usize,
     #[serde(default = "default_height")]
     image_height_px: usize,
+    /// "body" (seed 003's camera, fixed to the body) or "gimbal" (held looking down by a
+    /// gimbal that reports its attitude: fixes are projected with that).
+    #[serde(default)]
+    camera_mount: CameraMount,
 }
 
 fn default_process_noise() -> f64 {
@@ -76,6 +81,7 @@ const MAX_STATE_AGE_S: f64 = 0.5;
 
 struct TrackerTask {
     camera: PinholeCamera,
+    camera_mount: CameraMount,
     fix_noise: FixNoise,
     tracker: Tracker,
     platform: PlatformVelocityEstimator,
@@ -112,6 +118,7 @@ impl TrackerTask {
         .map_err(|e| bad(&e))?;
         Ok(Self {
             camera,
+            camera_mount: params.camera_mount,
             fix_noise,
             tracker,
             platform: PlatformVelocityEstimator::new(PlatformVelocityConfig {
@@ -156,6 +163,7 @@ impl Task for TrackerTask {
             height_above_pad_m: state.height_above_pad_m,
             position_ned_m: state.position_ned_m,
             velocity_ned_m_s: state.velocity_ned_m_s,
+            gimbal_attitude: state.gimbal_attitude,
         });
         let now_s = ctx.now().as_secs_f64();
         let state_fresh = now_s - latest.stamp.as_secs_f64() <= MAX_STATE_AGE_S;
@@ -183,15 +191,23 @@ impl Task for TrackerTask {
                         height_above_pad_m: state.height_above_pad_m,
                         position_ned_m: state.position_ned_m,
                         velocity_ned_m_s: state.velocity_ned_m_s,
+                        gimbal_attitude: state.gimbal_attitude,
                     });
-                match pad_relative_to_uav_ned_m(
-                    &self.camera,
-                    &at_capture.attitude,
-                    at_capture.height_above_pad_m,
-                    u,
-                    v,
-                ) {
-                    Ok(pad_relative) => {
+                // A gimballed camera whose gimbal has not reported: the fix cannot be placed.
+                let projected = self
+                    .camera_mount
+                    .camera_attitude(&at_capture.attitude, at_capture.gimbal_attitude.as_ref())
+                    .map(|camera_attitude| {
+                        pad_relative_to_uav_ned_m(
+                            &self.camera,
+                            &camera_attitude,
+                            at_capture.height_above_pad_m,
+                            u,
+                            v,
+                        )
+                    });
+                match projected {
+                    Some(Ok(pad_relative)) => {
                         let capture_time_s = message.stamp.as_secs_f64();
                         // The tracker's state is UAV − platform: the pad's position negated.
                         let uav_relative = -pad_relative;
@@ -239,7 +255,13 @@ impl Task for TrackerTask {
                         }
                     }
                     // A pixel above the horizon or a bad height: skip the fix, keep predicting.
-                    Err(error) => tracing::debug!(task = ctx.name(), %error, "fix not projected"),
+                    Some(Err(error)) => {
+                        tracing::debug!(task = ctx.name(), %error, "fix not projected")
+                    }
+                    None => tracing::debug!(
+                        task = ctx.name(),
+                        "fix not projected: the camera's gimbal has not reported its attitude"
+                    ),
                 }
             }
         }

@@ -19,6 +19,7 @@ use algorithms::control::landing::{
     HorizontalController, LandingConfig, LandingController, LandingInput, RelativeFix,
 };
 use algorithms::control::mpc::MpcConfig;
+use algorithms::estimation::camera_mount::CameraMount;
 use algorithms::estimation::projection::pad_in_view_offset_ne_m;
 use algorithms::vision::camera::PinholeCamera;
 use nalgebra::Vector2;
@@ -82,6 +83,9 @@ struct Params {
     image_width_px: usize,
     #[serde(default = "super::kalman_tracker::default_height")]
     image_height_px: usize,
+    /// As the tracker's: a gimballed camera sees below the vehicle whatever its lean.
+    #[serde(default)]
+    camera_mount: CameraMount,
 }
 
 #[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
@@ -136,6 +140,7 @@ struct GuidanceTask {
     controller: LandingController,
     /// The camera and the margin the pad is kept inside, when keeping it in view.
     keep_in_view: Option<(PinholeCamera, f64)>,
+    camera_mount: CameraMount,
     max_fix_age_s: f64,
     max_vision_gap_s: f64,
     vehicle: Option<Subscriber<VehicleState>>,
@@ -201,6 +206,7 @@ impl GuidanceTask {
         Ok(Self {
             controller,
             keep_in_view: params.keep_in_view.then_some((camera, margin)),
+            camera_mount: params.camera_mount,
             max_fix_age_s: params.max_fix_age_s,
             max_vision_gap_s: params.max_vision_gap_s,
             vehicle: None,
@@ -277,8 +283,12 @@ impl Task for GuidanceTask {
             pad_in_view_offset_per_height: self
                 .keep_in_view
                 .as_ref()
-                .and_then(|(camera, margin)| {
-                    pad_in_view_offset_ne_m(camera, &state.attitude, 1.0, *margin)
+                .zip(
+                    self.camera_mount
+                        .camera_attitude(&state.attitude, state.gimbal_attitude.as_ref()),
+                )
+                .and_then(|((camera, margin), camera_attitude)| {
+                    pad_in_view_offset_ne_m(camera, &camera_attitude, 1.0, *margin)
                 })
                 .unwrap_or_else(Vector2::zeros),
         });

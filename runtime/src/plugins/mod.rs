@@ -79,8 +79,15 @@ mod tests {
     const PITCH_RAD: f64 = -0.05;
     const YAW_RAD: f64 = 0.4;
 
+    /// A vehicle leaning this far into the wind while its gimbal holds the camera at the
+    /// attitude above: projected with the vehicle's attitude, a fix from 5 m would be 1.8 m off.
+    const LEAN_RAD: f64 = 0.35;
+
     /// A hovering vehicle over a still pad: its camera's frames and its autopilot's state.
+    /// The camera is on a gimbal that reports it (the reference config's mount), or, with
+    /// `body_camera`, fixed to a vehicle with the camera's attitude.
     struct HoveringVehicle {
+        body_camera: bool,
         /// A few frames differing only in sensor noise: a live camera never repeats a frame.
         noisy_frames: Vec<Arc<algorithms::vision::image::GrayImage>>,
         frame_index: u64,
@@ -89,7 +96,7 @@ mod tests {
     }
 
     impl HoveringVehicle {
-        fn new() -> Self {
+        fn new(body_camera: bool) -> Self {
             let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
             let pose = CameraPose::downward(
                 Vector3::new(0.0, 0.0, -HEIGHT_M),
@@ -113,6 +120,7 @@ mod tests {
                 })
                 .collect();
             Self {
+                body_camera,
                 noisy_frames,
                 frame_index: 0,
                 frames: None,
@@ -129,13 +137,19 @@ mod tests {
         }
 
         fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
+            let camera = Attitude::new(ROLL_RAD, PITCH_RAD, YAW_RAD);
             let state = VehicleState {
-                attitude: Attitude::new(ROLL_RAD, PITCH_RAD, YAW_RAD),
+                attitude: if self.body_camera {
+                    camera
+                } else {
+                    Attitude::new(LEAN_RAD, PITCH_RAD, YAW_RAD)
+                },
                 velocity_ned_m_s: Vector3::zeros(),
                 acceleration_ned_m_s2: Vector3::zeros(),
                 height_above_pad_m: HEIGHT_M,
                 position_ned_m: Some(Vector3::new(0.0, 0.0, -HEIGHT_M)),
                 landed: false,
+                gimbal_attitude: (!self.body_camera).then_some(camera),
                 offboard: true,
             };
             self.state.as_ref().unwrap().publish(ctx.now(), state);
@@ -150,12 +164,21 @@ mod tests {
         }
     }
 
-    #[test]
-    fn frames_become_a_relative_position_and_landing_setpoints() {
+    /// The reference config's chain on a camera mounted as `mount` says, the vehicle's
+    /// camera mounted as `body_camera` says: the tracker's estimate after 2 s, and the chain's
+    /// scheduler and setpoints.
+    fn run_chain(
+        mount: &str,
+        body_camera: bool,
+    ) -> (
+        crate::scheduler::VirtualScheduler,
+        Option<RelativeState>,
+        Option<LandingSetpoint>,
+    ) {
         let mut registry = builtin_registry().unwrap();
         registry
-            .register("hovering_vehicle", |_, _| {
-                Ok(Box::new(HoveringVehicle::new()))
+            .register("hovering_vehicle", move |_, _| {
+                Ok(Box::new(HoveringVehicle::new(body_camera)))
             })
             .unwrap();
         let reference = include_str!("../../../qos.toml");
@@ -166,8 +189,16 @@ mod tests {
         vehicle.params = toml::Table::new();
         let mut builder = SchedulerBuilder::new(&registry);
         builder.task(&vehicle);
+        let mut tasks = Vec::new();
         for name in ["detection", "tracking", "landing"] {
-            builder.task(config.task(name).unwrap());
+            let mut task = config.task(name).unwrap().clone();
+            if name != "detection" {
+                task.params.insert("camera_mount".into(), mount.into());
+            }
+            tasks.push(task);
+        }
+        for task in &tasks {
+            builder.task(task);
         }
         let mut scheduler = builder.build_virtual().unwrap();
         let mut relative = scheduler
@@ -180,8 +211,23 @@ mod tests {
             .unwrap();
         scheduler.start().unwrap();
         scheduler.run_for(Duration::from_secs(2)).unwrap();
+        let relative = relative.latest().map(|m| m.value);
+        let setpoint = setpoints.latest().map(|m| m.value);
+        (scheduler, relative, setpoint)
+    }
 
-        let estimate = relative.latest().expect("a relative state").value.estimate;
+    /// On a gimbal (the reference config) or fixed to the body, the fix is placed with the
+    /// attitude the camera had: the vehicle leaning 20° under its gimbal changes nothing.
+    #[test]
+    fn frames_become_a_relative_position_and_landing_setpoints() {
+        for (mount, body_camera) in [("gimbal", false), ("body", true)] {
+            chain_finds_the_pad(mount, body_camera);
+        }
+    }
+
+    fn chain_finds_the_pad(mount: &str, body_camera: bool) {
+        let (scheduler, relative, setpoint) = run_chain(mount, body_camera);
+        let estimate = relative.expect("a relative state").estimate;
         // UAV − pad, NED: the vehicle is at the origin, HEIGHT_M above the pad.
         let truth = Vector3::new(-PAD_NORTH_M, -PAD_EAST_M, -HEIGHT_M);
         let error_m = (estimate.uav_relative_ned_m - truth).norm();
@@ -190,7 +236,7 @@ mod tests {
             "estimate {:?}, error {error_m} m",
             estimate.uav_relative_ned_m
         );
-        let setpoint = setpoints.latest().expect("a setpoint").value;
+        let setpoint = setpoint.expect("a setpoint");
         assert_ne!(setpoint.mode, LandingMode::Search, "{setpoint:?}");
         assert!(setpoint
             .velocity_setpoint_ned_m_s
@@ -203,6 +249,22 @@ mod tests {
         }
     }
 
+    /// A config that says "body" on a vehicle whose camera hangs in a gimbal projects with the
+    /// lean, and lands its fix h·tan(lean) away; one that says "gimbal" on a vehicle with no
+    /// gimbal places no fix at all (and so never steers towards a wrong one).
+    #[test]
+    fn a_camera_mount_that_is_not_the_vehicles_is_no_good_fix() {
+        let (_, relative, _) = run_chain("body", false);
+        let estimate = relative.expect("a relative state").estimate;
+        let truth = Vector3::new(-PAD_NORTH_M, -PAD_EAST_M, -HEIGHT_M);
+        let error_m = (estimate.uav_relative_ned_m - truth).xy().norm();
+        let lean_shift_m = HEIGHT_M * ((LEAN_RAD).tan() - ROLL_RAD.tan());
+        assert!(error_m > 0.5 * lean_shift_m, "error {error_m} m");
+        let (_, relative, setpoint) = run_chain("gimbal", true);
+        assert!(relative.is_none(), "{relative:?}");
+        assert_eq!(setpoint.map(|s| s.mode), Some(LandingMode::Search));
+    }
+
     /// The chain with the landing task's IH at the hovering height, so the descent is only a
     /// matter of the phase: the tracking phase follows, the landing phase descends; with
     /// either controller.
@@ -210,7 +272,7 @@ mod tests {
         let mut registry = builtin_registry().unwrap();
         registry
             .register("hovering_vehicle", |_, _| {
-                Ok(Box::new(HoveringVehicle::new()))
+                Ok(Box::new(HoveringVehicle::new(false)))
             })
             .unwrap();
         let reference = include_str!("../../../qos.toml");
