@@ -1061,26 +1061,23 @@ mod tests {
                 && a.pitch_rad.abs() < 1e-6
                 && (a.yaw_rad - heading).abs() < 1e-6
         };
+        // The camera's attitude the vehicle state gives right after a status at `now_s`.
+        let mut report = |q, flags, now_s| {
+            assert!(state.apply(&status(q, flags), now_s).vehicle_state);
+            state.vehicle_state(now_s).unwrap().gimbal_attitude.unwrap()
+        };
         let earth = GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME;
-        assert!(
-            state
-                .apply(&status(looking_down(1.5), earth), 0.0)
-                .vehicle_state
-        );
-        let camera = state.vehicle_state(0.0).unwrap().gimbal_attitude.unwrap();
+        let camera = report(looking_down(1.5), earth, 0.0);
         assert!(close(camera, 1.5), "{camera:?}");
         // Relative to the vehicle's heading (1.2 rad): 0.3 rad more.
         let vehicle_frame = GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME;
-        state.apply(&status(looking_down(0.3), vehicle_frame), 0.1);
-        let camera = state.vehicle_state(0.1).unwrap().gimbal_attitude.unwrap();
+        let camera = report(looking_down(0.3), vehicle_frame, 0.1);
         assert!(close(camera, 1.5), "{camera:?}");
         // Without a frame flag: earth with YAW_LOCK (old gimbals), else the vehicle's.
-        state.apply(&status(looking_down(0.3), GimbalDeviceFlags::empty()), 0.2);
-        let camera = state.vehicle_state(0.2).unwrap().gimbal_attitude.unwrap();
+        let camera = report(looking_down(0.3), GimbalDeviceFlags::empty(), 0.2);
         assert!(close(camera, 1.5), "{camera:?}");
         let lock = GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_LOCK;
-        state.apply(&status(looking_down(0.3), lock), 0.3);
-        let camera = state.vehicle_state(0.3).unwrap().gimbal_attitude.unwrap();
+        let camera = report(looking_down(0.3), lock, 0.3);
         assert!(close(camera, 0.3), "{camera:?}");
         // A gimbal that stops reporting is not used past GIMBAL_STALE_S…
         assert!(state
