@@ -13,9 +13,11 @@ use algorithms::estimation::projection::Attitude;
 use nalgebra::{Rotation3, Vector2, Vector3};
 use thiserror::Error;
 
+use crate::camera::VehiclePose;
 use crate::flight::{
     AutopilotCommand, BatteryReading, CommandRejected, FlightMode, LandedState, VehicleSnapshot,
 };
+use crate::gimbal::Gimbal;
 use crate::tractor::PadState;
 
 const GRAVITY_M_S2: f64 = 9.80665;
@@ -313,6 +315,8 @@ pub struct Multirotor {
     touchdowns: Vec<Touchdown>,
     last_pad: Option<PadState>,
     time_s: f64,
+    /// The camera's gimbal, when the camera hangs in one (else it is fixed to the body).
+    gimbal: Option<Gimbal>,
 }
 
 impl Multirotor {
@@ -346,7 +350,28 @@ impl Multirotor {
             touchdowns: Vec::new(),
             last_pad: pad,
             time_s: 0.0,
+            gimbal: None,
         }
+    }
+
+    /// The vehicle with its camera on `gimbal`: it levels the camera as the vehicle flies, its
+    /// autopilot reports it, and [`Self::camera_pose`] is the gimbal's.
+    pub fn with_gimbal(mut self, gimbal: Gimbal) -> Self {
+        self.gimbal = Some(gimbal);
+        self
+    }
+
+    /// Where the camera is and points: the body's pose, or the gimbal's on a gimballed vehicle.
+    pub fn camera_pose(&self) -> VehiclePose {
+        let body = VehiclePose {
+            position_ned_m: self.position_ned_m,
+            attitude: self.attitude,
+            velocity_ned_m_s: self.velocity_ned_m_s,
+            body_rates_rad_s: self.body_rates_rad_s(),
+        };
+        self.gimbal
+            .as_ref()
+            .map_or(body, |gimbal| gimbal.camera_pose(&body))
     }
 
     /// Disarmed, landed on the ground at `position_ned_m`'s north and east (its down is ignored:
@@ -487,7 +512,10 @@ impl Multirotor {
             landed_state: self.landed_state(),
             rangefinder_m: self.rangefinder_m(),
             battery,
-            gimbal_attitude: None,
+            gimbal_attitude: self
+                .gimbal
+                .as_ref()
+                .map(|gimbal| gimbal.camera_attitude(&self.attitude)),
         }
     }
 
@@ -663,6 +691,9 @@ impl Multirotor {
         }
         self.last_pad = Some(*pad);
         self.time_s = time_s;
+        if let Some(gimbal) = self.gimbal.as_mut() {
+            gimbal.step(dt_s, &self.attitude);
+        }
         Ok(())
     }
 
@@ -1028,6 +1059,30 @@ mod tests {
             })
             .unwrap();
         }
+    }
+
+    /// A vehicle holding its place against a steady 8 N of wind leans into it; the camera in
+    /// its gimbal stays level on the heading, and the snapshot reports where it points.
+    #[test]
+    fn a_gimballed_camera_stays_level_while_the_vehicle_leans() {
+        let mut r = Run::airborne(10.0);
+        r.v =
+            r.v.with_gimbal(Gimbal::new(crate::gimbal::GimbalParams::default()).unwrap());
+        for _ in 0..(10.0 / DT) as usize {
+            r.step(Vector3::new(0.0, 8.0, 0.0), &far_pad());
+        }
+        assert!(r.v.tilt_rad() > 20f64.to_radians(), "{:?}", r.v.attitude());
+        let camera = r.v.camera_pose();
+        assert!(camera.attitude.roll_rad.abs() < 1e-3, "{camera:?}");
+        assert!(camera.attitude.pitch_rad.abs() < 1e-3, "{camera:?}");
+        assert_eq!(camera.attitude.yaw_rad, r.v.attitude().yaw_rad);
+        assert_eq!(camera.position_ned_m, r.v.position_ned_m());
+        let snap = r.v.snapshot(r.t, battery());
+        assert_eq!(snap.gimbal_attitude, Some(camera.attitude));
+        // Without a gimbal the camera is the body's, and no gimbal is reported.
+        let body = Run::airborne(10.0);
+        assert_eq!(body.v.camera_pose().attitude, body.v.attitude());
+        assert_eq!(body.v.snapshot(body.t, battery()).gimbal_attitude, None);
     }
 
     #[test]

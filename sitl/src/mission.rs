@@ -26,7 +26,7 @@ use runtime::topics::{
 };
 use sim::autopilot::MavlinkAutopilot;
 use sim::autopilot::StreamRates;
-use sim::camera::{PendingFrame, SimCamera, SimCameraConfig, VehiclePose};
+use sim::camera::{PendingFrame, SimCamera, SimCameraConfig};
 use sim::estimate::EstimatedTelemetry;
 use sim::gimbal::{Gimbal, GimbalError, GimbalParams};
 use sim::outcome::{LocalisationAccumulator, QosChange, SimOutcome, TrackSample};
@@ -204,6 +204,9 @@ pub fn simulate(
     }
     let mut vehicle =
         Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(|e| setup(&e))?;
+    if let Some(gimbal) = camera_gimbal(model).map_err(|e| setup(&e))? {
+        vehicle = vehicle.with_gimbal(gimbal);
+    }
     let mut wind = Wind::new(
         wind_config(options.wind_speed_m_s, options.wind_kind),
         options.seed ^ 0x5749_4e44,
@@ -222,7 +225,6 @@ pub fn simulate(
         std::collections::VecDeque::new();
     let mut latency_rng = SplitMix64::new(options.seed ^ 0x006c_6174_656e_6379);
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
-    let mut gimbal = camera_gimbal(model).map_err(|e| setup(&e))?;
     // The hazards stand beside the track the tractor will drive while the CNN watches.
     let watch_s: f64 = model.config.mission.phases[1..model.config.mission.phases.len() - 1]
         .iter()
@@ -392,13 +394,7 @@ pub fn simulate(
                 scene
                     .set_pad_pose(pad_pose(&tractor))
                     .map_err(|e| setup(&e))?;
-                let pose = VehiclePose {
-                    position_ned_m: vehicle.position_ned_m(),
-                    attitude: vehicle.attitude(),
-                    velocity_ned_m_s: vehicle.velocity_ned_m_s(),
-                    body_rates_rad_s: vehicle.body_rates_rad_s(),
-                };
-                let pose = gimbal.as_ref().map_or(pose, |g| g.camera_pose(&pose));
+                let pose = vehicle.camera_pose();
                 // Rendered on other threads during the frame's latency; the loop goes on.
                 match camera.capture_deferred(time_s, &pose, &scene) {
                     Ok(frame) => {
@@ -458,9 +454,7 @@ pub fn simulate(
         }
 
         // Autopilot → runtime → autopilot: in lockstep, or as the datagrams come.
-        let mut truth = vehicle.snapshot(time_s, battery.reading());
-        truth.gimbal_attitude = gimbal.as_ref().map(|g| g.camera_attitude(&truth.attitude));
-        let snapshot = estimate.report(&truth);
+        let snapshot = estimate.report(&vehicle.snapshot(time_s, battery.reading()));
         let t_ns = autopilot.publish(&snapshot).map_err(|e| link_error(&e))?;
         let lockstep = (!options.real_time).then_some(t_ns);
         let step = runner
@@ -560,9 +554,6 @@ pub fn simulate(
             vehicle
                 .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
                 .map_err(|e| setup(&e))?;
-            if let Some(gimbal) = gimbal.as_mut() {
-                gimbal.step(PHYSICS_DT_S, &vehicle.attitude());
-            }
         }
         let flight_w = flight_power_w(&vehicle, &mut wind, &rotors, time_s);
         // The companion draws what the tasks of the phase in flight cost at their levels.

@@ -223,7 +223,7 @@ pub fn serve(
         camera_config.rate_fps,
     );
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
-    let mut gimbal = camera_gimbal(model).map_err(|e| setup(&e))?;
+    let gimbal = camera_gimbal(model).map_err(|e| setup(&e))?;
     if px4 && gimbal.is_some() {
         // SIH streams PX4's own telemetry: no gimbal reports the camera's attitude.
         return Err(setup(
@@ -246,10 +246,14 @@ pub fn serve(
             let rotors = RotorPowerModel::iris(hover_power_w);
             rotors.validate().map_err(|e| setup(&e))?;
             Flyer::Simulated {
-                vehicle: Box::new(
-                    Multirotor::on_ground(VehicleParams::default(), Vector3::zeros())
-                        .map_err(|e| setup(&e))?,
-                ),
+                vehicle: Box::new({
+                    let vehicle = Multirotor::on_ground(VehicleParams::default(), Vector3::zeros())
+                        .map_err(|e| setup(&e))?;
+                    match gimbal {
+                        Some(gimbal) => vehicle.with_gimbal(gimbal),
+                        None => vehicle,
+                    }
+                }),
                 autopilot: Box::new(MavlinkAutopilot::bind_local(options.mavlink_addr, false)?),
                 wind: Box::new(
                     Wind::new(
@@ -295,16 +299,10 @@ pub fn serve(
                 battery,
                 ..
             } => {
-                let mut truth = vehicle.snapshot(time_s, battery.reading());
-                truth.gimbal_attitude = gimbal.as_ref().map(|g| g.camera_attitude(&truth.attitude));
-                autopilot.publish(&truth)?;
+                autopilot.publish(&vehicle.snapshot(time_s, battery.reading()))?;
                 apply_commands(vehicle, autopilot, time_s)?;
-                Some(VehiclePose {
-                    position_ned_m: vehicle.position_ned_m(),
-                    attitude: vehicle.attitude(),
-                    velocity_ned_m_s: vehicle.velocity_ned_m_s(),
-                    body_rates_rad_s: vehicle.body_rates_rad_s(),
-                })
+                // The camera's pose (the gimbal's, where it hangs in one); the same position.
+                Some(vehicle.camera_pose())
             }
             Flyer::Px4 {
                 listener,
@@ -350,8 +348,7 @@ pub fn serve(
             scene
                 .set_pad_pose(pad_pose(&tractor))
                 .map_err(|e| setup(&e))?;
-            let camera_pose = gimbal.as_ref().map_or(pose, |g| g.camera_pose(&pose));
-            match camera.capture_frame(time_s, &camera_pose, &scene) {
+            match camera.capture_frame(time_s, &pose, &scene) {
                 Ok(frame) => {
                     frames_rendered += 1;
                     // Captured at the tick's instant on the wall clock, however late the
@@ -386,9 +383,6 @@ pub fn serve(
                 vehicle
                     .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
                     .map_err(|e| setup(&e))?;
-                if let Some(gimbal) = gimbal.as_mut() {
-                    gimbal.step(PHYSICS_DT_S, &vehicle.attitude());
-                }
             }
         }
         let touchdown = match &mut flyer {
