@@ -21,6 +21,7 @@ use algorithms::vision::render::{
     render_rows, ImageEffects, MotionBlur, RenderError, Scene, SplitMix64,
 };
 use nalgebra::Vector3;
+use rayon::prelude::*;
 use thiserror::Error;
 
 use crate::scene::{SceneError, SimScene};
@@ -348,7 +349,7 @@ impl SimCamera {
             Begun::Render(job) => {
                 let slot = Arc::new(FrameSlot::default());
                 let filled = Arc::clone(&slot);
-                std::thread::spawn(move || filled.fill(job.run()));
+                rayon::spawn(move || filled.fill(job.run()));
                 self.last_frame = Some(Arc::clone(&slot));
                 slot
             }
@@ -570,7 +571,7 @@ impl RenderJob {
     }
 }
 
-/// Fills `out` (rows of `width`) band by band, each band's rows on its own thread:
+/// Fills `out` (rows of `width`) band by band, the bands on the process's thread pool:
 /// `fill(first_row, band)`.
 fn in_bands<T: Send, E: Send>(
     out: &mut [T],
@@ -583,17 +584,9 @@ fn in_bands<T: Send, E: Send>(
     if threads <= 1 {
         return fill(0, out);
     }
-    let fill = &fill;
-    std::thread::scope(|scope| {
-        let bands: Vec<_> = out
-            .chunks_mut(rows_per_band * width)
-            .enumerate()
-            .map(|(band, rows)| scope.spawn(move || fill(band * rows_per_band, rows)))
-            .collect();
-        bands
-            .into_iter()
-            .try_for_each(|band| band.join().expect("a frame's band does not panic"))
-    })
+    out.par_chunks_mut(rows_per_band * width)
+        .enumerate()
+        .try_for_each(|(band, rows)| fill(band * rows_per_band, rows))
 }
 
 /// The camera's effects on a rendered frame (intensities 0 to 1), in the renderer's order

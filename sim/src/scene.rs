@@ -699,19 +699,36 @@ impl BakedTexture {
     }
 
     /// [`Self::sample`] at every point: a run of points in one tile looks the tile up once,
-    /// and points inside the baked square (nearly all) take a short path with no wrapping.
+    /// and a run of points in one repetition of the baked square shares its wrap (a tractor
+    /// drives out of the square within minutes; wrapping each point was half a frame's time).
     fn sample_many(&self, points: &[[f64; 2]], out: &mut [f32]) {
         let stride = TILE_TEXELS + 1;
         let limit = self.limit_texels;
         let [origin_n, origin_e] = self.origin_m;
         let mut cached: (usize, &[f32]) = (usize::MAX, &[]);
+        // Whole repetitions of the square subtracted from the points' texel coordinates.
+        let mut wrap_texels = [0.0f64; 2];
+        let inside = |g: f64| g >= 0.0 && g < limit;
         for (&[north_m, east_m], value) in points.iter().zip(out) {
-            let gn = (north_m - origin_n) * self.texels_per_m;
-            let ge = (east_m - origin_e) * self.texels_per_m;
+            let raw = [
+                (north_m - origin_n) * self.texels_per_m,
+                (east_m - origin_e) * self.texels_per_m,
+            ];
+            // Exact: the wrap is a whole number of texels (as `rem_euclid` in `locate`).
+            let (mut gn, mut ge) = (raw[0] - wrap_texels[0], raw[1] - wrap_texels[1]);
             // False for NaN too.
-            if !(gn >= 0.0 && gn < limit && ge >= 0.0 && ge < limit) {
-                *value = self.sample(north_m, east_m);
-                continue;
+            if !(inside(gn) && inside(ge)) {
+                if !(raw[0].is_finite() && raw[1].is_finite()) {
+                    *value = self.sample(north_m, east_m);
+                    continue;
+                }
+                wrap_texels = raw.map(|g| (g / limit).floor() * limit);
+                (gn, ge) = (raw[0] - wrap_texels[0], raw[1] - wrap_texels[1]);
+                // Rounding can leave a point on the square's far edge: the one-point path.
+                if !(inside(gn) && inside(ge)) {
+                    *value = self.sample(north_m, east_m);
+                    continue;
+                }
             }
             let (in_, ie) = (gn as u32 as usize, ge as u32 as usize);
             let index = (in_ / TILE_TEXELS) * self.tiles_per_side + ie / TILE_TEXELS;
@@ -1153,6 +1170,8 @@ mod tests {
             .map(|k| [k as f64 * 0.031 - 4.0, (k % 17) as f64 * 0.9 - 7.0])
             .collect();
         points.extend([[50.0, -70.0], [f64::INFINITY, 1.0], [3.3, 1.7]]);
+        // A run far outside the square (a tractor kilometres out), crossing a repetition's edge.
+        points.extend((0..200).map(|k| [1200.0 + k as f64 * 0.013, -830.0 - k as f64 * 0.07]));
         let mut many = vec![0f32; points.len()];
         baked.sample_many(&points, &mut many);
         for (&[n, e], value) in points.iter().zip(&many) {

@@ -552,15 +552,15 @@ pub fn render_rows(
             scene
                 .background
                 .sample_many(&ground_points, &mut ground_values);
+            // The whole row as ground (or sky), in a pass with no branches to vectorise; the
+            // columns that may see a patch are drawn again below.
+            for ((out, point), &value) in row_out.iter_mut().zip(&ground_points).zip(&ground_values)
+            {
+                *out = if point[0].is_nan() { scene.sky } else { value }.clamp(0.0, 1.0);
+            }
         }
         for (col, out) in row_out.iter_mut().enumerate() {
             if fast_row && !may_meet_patch[col] {
-                *out = if ground_points[col][0].is_nan() {
-                    scene.sky
-                } else {
-                    ground_values[col]
-                }
-                .clamp(0.0, 1.0);
                 continue;
             }
             let candidates: &[&PreparedPatch<'_>] = if may_meet_patch[col] {
