@@ -737,7 +737,10 @@ impl Machine {
                 if lost_for_s > c.lost_timeout_s {
                     self.mode = LandingMode::Reacquire;
                 } else if error_m.is_some_and(|e| e > c.recentre_factor * radius_m) {
-                    self.enter_follow(height_m);
+                    // Below LH the camera sees a patch about a metre across, and a gust that
+                    // took the vehicle off centre there lost the pad within seconds (Dryden
+                    // 12 m/s, 1 m): the vehicle follows again from LH at least.
+                    self.enter_follow(height_m.max(c.final_landing_height_m));
                 } else if centred && height_m <= c.final_landing_height_m {
                     let since_s = *self.centred_since_s.get_or_insert(time_s);
                     if time_s - since_s >= c.commit_dwell_s {
@@ -932,6 +935,30 @@ mod tests {
             height_m = (height_m - command.z * DT_S).max(0.0);
         }
         panic!("never landed");
+    }
+
+    /// Knocked off centre below LH before the commit: the vehicle follows again from LH,
+    /// climbing, not from where the gust caught it; centred there, it descends and commits.
+    #[test]
+    fn a_recentre_below_the_commit_height_climbs_back_to_it() {
+        let (mut c, mut t_s) = descending();
+        let lh_m = LandingConfig::default().final_landing_height_m;
+        let low_m = 0.8 * lh_m;
+        let out = run(&mut c, &mut t_s, DT_S, Some(0.6), low_m);
+        assert_eq!(out.mode, LandingMode::Follow);
+        assert!(
+            out.velocity_setpoint_ned_m_s.z < -0.1,
+            "climbs: {}",
+            out.velocity_setpoint_ned_m_s.z
+        );
+        // A recentre above LH holds the height it was caught at, as before.
+        let (mut above, mut t_above_s) = descending();
+        let out = run(&mut above, &mut t_above_s, DT_S, Some(2.5), 4.0);
+        assert_eq!(out.mode, LandingMode::Follow);
+        assert!(out.velocity_setpoint_ned_m_s.z.abs() < 1e-9);
+        // Back at LH and centred: down again, and committed after its dwell.
+        let out = run(&mut c, &mut t_s, 1.0, Some(0.0), lh_m);
+        assert_eq!(out.mode, LandingMode::FinalLanding);
     }
 
     /// Searching with no fix, the same lean: the vehicle moves upwind until its camera sees
