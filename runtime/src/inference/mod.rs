@@ -6,6 +6,7 @@
 //!
 //! Models are image models with one input `[1, C, H, W]` (C = 1 or 3) and one output.
 
+pub mod pipeline;
 mod tract_backend;
 
 #[cfg(feature = "cuda")]

@@ -32,6 +32,23 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
+use crate::inference::pipeline::Pipeline;
+use algorithms::vision::image::GrayImage;
+
+/// A frame's boxes and the wall time they took (preprocessing, inference, decoding), ms.
+type InferenceResult = Result<(Vec<Detection>, f64), TaskError>;
+
+/// What places a frame's boxes on the ground, fixed when the frame is taken up.
+struct Placement {
+    frame_index: u64,
+    capture_time_s: f64,
+    camera: PinholeCamera,
+    /// The camera's attitude and the vehicle's position at the frame's capture.
+    at_capture: Option<(Attitude, Option<Vector3<f64>>)>,
+    /// The followed pad on the ground (north, east).
+    pad_ne_m: Option<(f64, f64)>,
+}
+
 pub const PLUGIN_NAME: &str = "hazard_cnn";
 
 /// The detector shipped with qosrt: `cargo run --release -p hazard_train` makes it.
@@ -101,6 +118,12 @@ struct Params {
     /// followed, not a hazard beside it (its roof and pad are no hazard); 0 keeps them all.
     #[serde(default = "default_pad_exclusion")]
     pad_exclusion_radius_m: f64,
+    /// Infer on a thread of its own: a frame's report is published at the task's next step
+    /// (a period later) and the step returns at once, so the tasks sharing the scheduler's
+    /// thread (the landing loop) are not held up by an inference, and a simulation renders and
+    /// infers on two cores. False: the step waits for the inference and reports at once.
+    #[serde(default)]
+    pipelined: bool,
 }
 
 fn default_classes() -> Vec<String> {
@@ -163,7 +186,12 @@ pub struct HazardCnnTask {
     pad_exclusion_radius_m: f64,
     resource: Resource,
     cpu_fallback_said: Arc<AtomicBool>,
+    pipelined: bool,
     backend: Option<Box<dyn InferenceBackend>>,
+    /// With `pipelined`, the backend on its own thread, and where the frame in flight goes.
+    pipeline: Option<Pipeline<Arc<GrayImage>, InferenceResult>>,
+    in_flight: Option<Placement>,
+    backend_name: &'static str,
     frames: Option<Subscriber<CameraFrame>>,
     vehicle: Option<Subscriber<VehicleState>>,
     output: Option<Publisher<HazardReport>>,
@@ -254,7 +282,11 @@ impl HazardCnnTask {
             pad_exclusion_radius_m: params.pad_exclusion_radius_m,
             resource,
             cpu_fallback_said,
+            pipelined: params.pipelined,
             backend: None,
+            pipeline: None,
+            in_flight: None,
+            backend_name: "",
             frames: None,
             vehicle: None,
             output: None,
@@ -290,6 +322,131 @@ impl HazardCnnTask {
         )
         .map_err(TaskError::other)?;
         non_maximum_suppression(detections, iou_threshold).map_err(TaskError::other)
+    }
+
+    /// [`Self::detect`] on a frame, with its wall time in ms.
+    fn timed_detect(
+        backend: &mut dyn InferenceBackend,
+        image: &GrayImage,
+        format: YoloFormat,
+        classes: usize,
+        confidence_threshold: f64,
+        iou_threshold: f64,
+    ) -> InferenceResult {
+        let started = Instant::now();
+        let detections = Self::detect(
+            backend,
+            &image.view(),
+            format,
+            classes,
+            confidence_threshold,
+            iou_threshold,
+        )?;
+        Ok((detections, started.elapsed().as_secs_f64() * 1e3))
+    }
+
+    /// Where a frame's boxes will be placed, from the vehicle and the tracker now; `None` for a
+    /// frame taken below `min_height_m`, which is not looked at.
+    fn placement(
+        &mut self,
+        frame: &CameraFrame,
+        capture_time_s: f64,
+    ) -> Result<Option<Placement>, TaskError> {
+        let Some(vehicle) = self.vehicle.as_mut() else {
+            return Err(TaskError::failed("stepped before start"));
+        };
+        let state = vehicle.latest().map(|m| m.value);
+        let height_m = state.as_ref().and_then(|s| s.position_ned_m).map(|p| -p.z);
+        if height_m.is_some_and(|h| h < self.min_height_m) {
+            return Ok(None);
+        }
+        let camera = PinholeCamera::from_fov(
+            frame.image.width(),
+            frame.image.height(),
+            self.horizontal_fov_rad,
+        )
+        .map_err(TaskError::other)?;
+        // Where the followed pad lies on the ground, from the tracker (UAV − pad) and the vehicle.
+        let pad_ne_m = match (
+            state.as_ref().and_then(|s| s.position_ned_m),
+            self.relative.as_mut().and_then(|r| r.latest()),
+        ) {
+            (Some(position), Some(relative)) => {
+                let pad = position - relative.value.estimate.uav_relative_ned_m;
+                Some((pad.x, pad.y))
+            }
+            _ => None,
+        };
+        // The vehicle as it was when the frame was exposed (the runner interpolates it from
+        // telemetry); as it is now when the frame came without it. A box is placed with it:
+        // in gusts the vehicle turns by degrees between the exposure and this step.
+        let mount = self.camera_mount;
+        let at_capture = frame
+            .vehicle_at_capture
+            .map(|s| (s.attitude, s.gimbal_attitude, s.position_ned_m))
+            .or_else(|| {
+                state
+                    .as_ref()
+                    .map(|s| (s.attitude, s.gimbal_attitude, s.position_ned_m))
+            })
+            .and_then(|(attitude, gimbal, position)| {
+                Some((mount.camera_attitude(&attitude, gimbal.as_ref())?, position))
+            });
+        Ok(Some(Placement {
+            frame_index: frame.frame_index,
+            capture_time_s,
+            camera,
+            at_capture,
+            pad_ne_m,
+        }))
+    }
+
+    /// A frame's report: its most confident boxes placed on the ground, those on the followed
+    /// pad left out.
+    fn publish(
+        &mut self,
+        ctx: &TaskContext<'_>,
+        placement: &Placement,
+        mut detections: Vec<Detection>,
+        inference_ms: f64,
+    ) -> Result<(), TaskError> {
+        let Some(output) = self.output.as_ref() else {
+            return Err(TaskError::failed("stepped before start"));
+        };
+        detections.truncate(self.max_detections);
+        let radius_m = self.pad_exclusion_radius_m;
+        let detections: Vec<HazardDetection> = detections
+            .into_iter()
+            .map(|d| {
+                let (u, v) = d.bbox.centre();
+                HazardDetection {
+                    class_id: d.class_id,
+                    class_name: self.classes[d.class_id].clone(),
+                    confidence: d.confidence,
+                    bbox: d.bbox,
+                    position_ned_m: placement.at_capture.and_then(|(attitude, position)| {
+                        ground_position_ned_m(&placement.camera, &attitude, position, u, v)
+                    }),
+                }
+            })
+            .filter(|d| match (d.position_ned_m, placement.pad_ne_m) {
+                (Some(p), Some((north_m, east_m))) => {
+                    (p.x - north_m).hypot(p.y - east_m) > radius_m
+                }
+                _ => true,
+            })
+            .collect();
+        output.publish(
+            ctx.now(),
+            HazardReport {
+                frame_index: placement.frame_index,
+                capture_time_s: placement.capture_time_s,
+                detections,
+                backend: self.backend_name,
+                inference_ms,
+            },
+        );
+        Ok(())
     }
 }
 
@@ -348,7 +505,22 @@ impl Task for HazardCnnTask {
             }
         }
         tracing::info!(task = ctx.name(), model = %self.source, backend = backend.name(), input = ?spec, "hazard model loaded");
-        self.backend = Some(backend);
+        self.backend_name = backend.name();
+        if self.pipelined {
+            let (format, classes) = (self.format, self.classes.len());
+            let (confidence, iou) = (self.confidence_threshold, self.iou_threshold);
+            let pipeline = Pipeline::spawn(
+                &format!("{}-inference", ctx.name()),
+                move |image: Arc<GrayImage>| {
+                    Self::timed_detect(backend.as_mut(), &image, format, classes, confidence, iou)
+                },
+            )
+            .map_err(TaskError::other)?;
+            self.pipeline = Some(pipeline);
+        } else {
+            self.backend = Some(backend);
+        }
+        self.in_flight = None;
         self.frames = Some(ctx.bus().subscriber(CAMERA_FRAME)?);
         self.vehicle = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
         self.output = Some(ctx.bus().publisher(HAZARDS)?);
@@ -357,25 +529,35 @@ impl Task for HazardCnnTask {
     }
 
     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        let (Some(backend), Some(frames), Some(vehicle), Some(output)) = (
-            self.backend.as_mut(),
-            self.frames.as_mut(),
-            self.vehicle.as_mut(),
-            self.output.as_ref(),
-        ) else {
+        // The frame handed over at the last step: its report now.
+        if let Some(pipeline) = self.pipeline.as_mut() {
+            if let (Some(result), Some(placement)) = (
+                pipeline.collect().map_err(TaskError::other)?,
+                self.in_flight.take(),
+            ) {
+                let (detections, inference_ms) = result?;
+                self.publish(ctx, &placement, detections, inference_ms)?;
+            }
+        }
+        let Some(frames) = self.frames.as_mut() else {
             return Err(TaskError::failed("stepped before start"));
         };
         let Some(frame) = frames.take_new() else {
             return Ok(());
         };
-        let state = vehicle.latest().map(|m| m.value);
-        let height_m = state.as_ref().and_then(|s| s.position_ned_m).map(|p| -p.z);
-        if height_m.is_some_and(|h| h < self.min_height_m) {
+        let Some(placement) = self.placement(&frame.value, frame.stamp.as_secs_f64())? else {
+            return Ok(());
+        };
+        let image = Arc::clone(&frame.value.image);
+        if let Some(pipeline) = self.pipeline.as_mut() {
+            pipeline.submit(image).map_err(TaskError::other)?;
+            self.in_flight = Some(placement);
             return Ok(());
         }
-        let started = Instant::now();
-        let image = frame.value.image.view();
-        let mut detections = Self::detect(
+        let Some(backend) = self.backend.as_mut() else {
+            return Err(TaskError::failed("stepped before start"));
+        };
+        let (detections, inference_ms) = Self::timed_detect(
             backend.as_mut(),
             &image,
             self.format,
@@ -383,74 +565,13 @@ impl Task for HazardCnnTask {
             self.confidence_threshold,
             self.iou_threshold,
         )?;
-        detections.truncate(self.max_detections);
-        let camera =
-            PinholeCamera::from_fov(image.width(), image.height(), self.horizontal_fov_rad)
-                .map_err(TaskError::other)?;
-        // Where the followed pad lies on the ground, from the tracker (UAV − pad) and the vehicle.
-        let pad_ne_m = match (
-            state.as_ref().and_then(|s| s.position_ned_m),
-            self.relative.as_mut().and_then(|r| r.latest()),
-        ) {
-            (Some(position), Some(relative)) => {
-                let pad = position - relative.value.estimate.uav_relative_ned_m;
-                Some((pad.x, pad.y))
-            }
-            _ => None,
-        };
-        let radius_m = self.pad_exclusion_radius_m;
-        // The vehicle as it was when the frame was exposed (the runner interpolates it from
-        // telemetry); as it is now when the frame came without it. A box is placed with it:
-        // in gusts the vehicle turns by degrees between the exposure and this step.
-        let mount = self.camera_mount;
-        let at_capture = frame
-            .value
-            .vehicle_at_capture
-            .map(|s| (s.attitude, s.gimbal_attitude, s.position_ned_m))
-            .or_else(|| {
-                state
-                    .as_ref()
-                    .map(|s| (s.attitude, s.gimbal_attitude, s.position_ned_m))
-            })
-            .and_then(|(attitude, gimbal, position)| {
-                Some((mount.camera_attitude(&attitude, gimbal.as_ref())?, position))
-            });
-        let detections: Vec<HazardDetection> = detections
-            .into_iter()
-            .map(|d| {
-                let (u, v) = d.bbox.centre();
-                HazardDetection {
-                    class_id: d.class_id,
-                    class_name: self.classes[d.class_id].clone(),
-                    confidence: d.confidence,
-                    bbox: d.bbox,
-                    position_ned_m: at_capture.and_then(|(attitude, position)| {
-                        ground_position_ned_m(&camera, &attitude, position, u, v)
-                    }),
-                }
-            })
-            .filter(|d| match (d.position_ned_m, pad_ne_m) {
-                (Some(p), Some((north_m, east_m))) => {
-                    (p.x - north_m).hypot(p.y - east_m) > radius_m
-                }
-                _ => true,
-            })
-            .collect();
-        output.publish(
-            ctx.now(),
-            HazardReport {
-                frame_index: frame.value.frame_index,
-                capture_time_s: frame.stamp.as_secs_f64(),
-                detections,
-                backend: backend.name(),
-                inference_ms: started.elapsed().as_secs_f64() * 1e3,
-            },
-        );
-        Ok(())
+        self.publish(ctx, &placement, detections, inference_ms)
     }
 
     fn stop(&mut self) {
         self.backend = None;
+        self.pipeline = None;
+        self.in_flight = None;
     }
 }
 
@@ -666,6 +787,87 @@ mod tests {
             ground_position_ned_m(&camera, &vehicle.attitude, vehicle.position_ned_m, cx, cy)
                 .is_none()
         );
+    }
+
+    /// Pipelined, the task reports on each frame what the synchronous task reports, a step
+    /// later: the same boxes, placed with the vehicle as it was when the frame was taken up
+    /// (the vehicle moves between the two steps here), and the frame in flight is reported
+    /// at the next step even when no new frame has come.
+    #[test]
+    fn a_pipelined_task_reports_each_frame_as_the_synchronous_one_a_step_later() {
+        // Speckled frames with dark blobs; a low threshold so the shipped model finds boxes.
+        let frame_image = |k: u64| {
+            let mut state = 0x9e37_79b9_7f4a_7c15u64 ^ k;
+            let mut pixels = vec![0u8; 640 * 480];
+            for (i, p) in pixels.iter_mut().enumerate() {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let (x, y) = ((i % 640) as i64, (i / 640) as i64);
+                let blob = (x - 100 - 60 * k as i64).pow(2) + (y - 240).pow(2) < 400;
+                *p = if blob { 20 } else { 110 + (state >> 59) as u8 };
+            }
+            Arc::new(algorithms::vision::image::GrayImage::from_vec(640, 480, pixels).unwrap())
+        };
+        let fly = |pipelined: bool| {
+            let harness = Harness::new();
+            let bus = &harness.bus;
+            let mut hazard = task(&format!(
+                "confidence_threshold = 0.02\npipelined = {pipelined}"
+            ))
+            .unwrap();
+            hazard.start(&mut harness.context(Timestamp::ZERO)).unwrap();
+            let frames = bus.publisher::<CameraFrame>(CAMERA_FRAME).unwrap();
+            let vehicle = bus.publisher::<VehicleState>(VEHICLE_STATE).unwrap();
+            let mut reports = bus.subscriber::<HazardReport>(HAZARDS).unwrap();
+            let mut published = Vec::new();
+            for step in 0..6u64 {
+                let now = Timestamp::from_millis(250 * (step + 1));
+                vehicle.publish(
+                    now,
+                    VehicleState {
+                        attitude: Default::default(),
+                        velocity_ned_m_s: Vector3::zeros(),
+                        acceleration_ned_m_s2: Vector3::zeros(),
+                        height_above_pad_m: 8.0,
+                        position_ned_m: Some(Vector3::new(step as f64, 0.0, -8.0)),
+                        landed: false,
+                        gimbal_attitude: None,
+                        offboard: true,
+                    },
+                );
+                // Five frames, then a step with none.
+                if step < 5 {
+                    frames.publish(
+                        now,
+                        CameraFrame {
+                            vehicle_at_capture: None,
+                            frame_index: step,
+                            image: frame_image(step),
+                        },
+                    );
+                }
+                hazard.step(&mut harness.context(now)).unwrap();
+                if let Some(report) = reports.take_new() {
+                    published.push((step, report.value.clone()));
+                }
+            }
+            published
+        };
+        let synchronous = fly(false);
+        let pipelined = fly(true);
+        assert_eq!(synchronous.len(), 5);
+        assert_eq!(pipelined.len(), 5);
+        assert!(
+            synchronous.iter().any(|(_, r)| !r.detections.is_empty()),
+            "no boxes to compare"
+        );
+        for ((sync_step, sync), (pipe_step, pipe)) in synchronous.iter().zip(&pipelined) {
+            assert_eq!(*pipe_step, sync_step + 1);
+            assert_eq!(pipe.frame_index, sync.frame_index);
+            assert_eq!(pipe.capture_time_s, sync.capture_time_s);
+            assert_eq!(pipe.detections, sync.detections);
+        }
     }
 
     #[test]
