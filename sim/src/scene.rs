@@ -717,18 +717,15 @@ impl BakedTexture {
             // Exact: the wrap is a whole number of texels (as `rem_euclid` in `locate`).
             let (mut gn, mut ge) = (raw[0] - wrap_texels[0], raw[1] - wrap_texels[1]);
             // False for NaN too.
-            if !(inside(gn) && inside(ge)) {
-                if !(raw[0].is_finite() && raw[1].is_finite()) {
-                    *value = self.sample(north_m, east_m);
-                    continue;
-                }
+            if !(inside(gn) && inside(ge)) && raw.iter().all(|g| g.is_finite()) {
                 wrap_texels = raw.map(|g| (g / limit).floor() * limit);
                 (gn, ge) = (raw[0] - wrap_texels[0], raw[1] - wrap_texels[1]);
-                // Rounding can leave a point on the square's far edge: the one-point path.
-                if !(inside(gn) && inside(ge)) {
-                    *value = self.sample(north_m, east_m);
-                    continue;
-                }
+            }
+            // Off the grid (not finite), or left on the square's far edge by rounding: the
+            // one-point path.
+            if !(inside(gn) && inside(ge)) {
+                *value = self.sample(north_m, east_m);
+                continue;
             }
             let (in_, ie) = (gn as u32 as usize, ge as u32 as usize);
             let index = (in_ / TILE_TEXELS) * self.tiles_per_side + ie / TILE_TEXELS;

@@ -188,9 +188,8 @@ pub struct HazardCnnTask {
     cpu_fallback_said: Arc<AtomicBool>,
     pipelined: bool,
     backend: Option<Box<dyn InferenceBackend>>,
-    /// With `pipelined`, the backend on its own thread, and where the frame in flight goes.
-    pipeline: Option<Pipeline<Arc<GrayImage>, InferenceResult>>,
-    in_flight: Option<Placement>,
+    /// With `pipelined`, the backend on its own thread; a frame's placement travels with it.
+    pipeline: Option<Pipeline<(Arc<GrayImage>, Placement), (Placement, InferenceResult)>>,
     backend_name: &'static str,
     frames: Option<Subscriber<CameraFrame>>,
     vehicle: Option<Subscriber<VehicleState>>,
@@ -285,7 +284,6 @@ impl HazardCnnTask {
             pipelined: params.pipelined,
             backend: None,
             pipeline: None,
-            in_flight: None,
             backend_name: "",
             frames: None,
             vehicle: None,
@@ -511,8 +509,16 @@ impl Task for HazardCnnTask {
             let (confidence, iou) = (self.confidence_threshold, self.iou_threshold);
             let pipeline = Pipeline::spawn(
                 &format!("{}-inference", ctx.name()),
-                move |image: Arc<GrayImage>| {
-                    Self::timed_detect(backend.as_mut(), &image, format, classes, confidence, iou)
+                move |(image, placement): (Arc<GrayImage>, Placement)| {
+                    let result = Self::timed_detect(
+                        backend.as_mut(),
+                        &image,
+                        format,
+                        classes,
+                        confidence,
+                        iou,
+                    );
+                    (placement, result)
                 },
             )
             .map_err(TaskError::other)?;
@@ -520,7 +526,6 @@ impl Task for HazardCnnTask {
         } else {
             self.backend = Some(backend);
         }
-        self.in_flight = None;
         self.frames = Some(ctx.bus().subscriber(CAMERA_FRAME)?);
         self.vehicle = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
         self.output = Some(ctx.bus().publisher(HAZARDS)?);
@@ -531,10 +536,7 @@ impl Task for HazardCnnTask {
     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
         // The frame handed over at the last step: its report now.
         if let Some(pipeline) = self.pipeline.as_mut() {
-            if let (Some(result), Some(placement)) = (
-                pipeline.collect().map_err(TaskError::other)?,
-                self.in_flight.take(),
-            ) {
+            if let Some((placement, result)) = pipeline.collect().map_err(TaskError::other)? {
                 let (detections, inference_ms) = result?;
                 self.publish(ctx, &placement, detections, inference_ms)?;
             }
@@ -550,8 +552,10 @@ impl Task for HazardCnnTask {
         };
         let image = Arc::clone(&frame.value.image);
         if let Some(pipeline) = self.pipeline.as_mut() {
-            pipeline.submit(image).map_err(TaskError::other)?;
-            self.in_flight = Some(placement);
+            // Nothing is in flight (collected above), so nothing comes back here.
+            pipeline
+                .submit((image, placement))
+                .map_err(TaskError::other)?;
             return Ok(());
         }
         let Some(backend) = self.backend.as_mut() else {
@@ -571,7 +575,6 @@ impl Task for HazardCnnTask {
     fn stop(&mut self) {
         self.backend = None;
         self.pipeline = None;
-        self.in_flight = None;
     }
 }
 
@@ -620,6 +623,20 @@ mod tests {
 
         fn context(&self, now: Timestamp) -> TaskContext<'_> {
             TaskContext::new("hazard", now, &self.level, &self.bus, &self.health, 1)
+        }
+    }
+
+    /// A level vehicle at `position_ned_m`, over flat ground at the pad's level.
+    fn level_vehicle(position_ned_m: Vector3<f64>) -> VehicleState {
+        VehicleState {
+            attitude: Default::default(),
+            velocity_ned_m_s: Vector3::zeros(),
+            acceleration_ned_m_s2: Vector3::zeros(),
+            height_above_pad_m: -position_ned_m.z,
+            position_ned_m: Some(position_ned_m),
+            landed: false,
+            gimbal_attitude: None,
+            offboard: true,
         }
     }
 
@@ -747,16 +764,7 @@ mod tests {
         // Level flight 10 m up at (5, −3): the image centre is straight below, and a pixel
         // offset lands where the pinhole geometry says.
         let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
-        let mut vehicle = VehicleState {
-            attitude: algorithms::estimation::projection::Attitude::new(0.0, 0.0, 0.0),
-            velocity_ned_m_s: Vector3::zeros(),
-            acceleration_ned_m_s2: Vector3::zeros(),
-            height_above_pad_m: 9.0,
-            position_ned_m: Some(Vector3::new(5.0, -3.0, -10.0)),
-            landed: false,
-            gimbal_attitude: None,
-            offboard: true,
-        };
+        let mut vehicle = level_vehicle(Vector3::new(5.0, -3.0, -10.0));
         let (cx, cy) = (camera.cx_px, camera.cy_px);
         let below =
             ground_position_ned_m(&camera, &vehicle.attitude, vehicle.position_ned_m, cx, cy)
@@ -823,19 +831,7 @@ mod tests {
             let mut published = Vec::new();
             for step in 0..6u64 {
                 let now = Timestamp::from_millis(250 * (step + 1));
-                vehicle.publish(
-                    now,
-                    VehicleState {
-                        attitude: Default::default(),
-                        velocity_ned_m_s: Vector3::zeros(),
-                        acceleration_ned_m_s2: Vector3::zeros(),
-                        height_above_pad_m: 8.0,
-                        position_ned_m: Some(Vector3::new(step as f64, 0.0, -8.0)),
-                        landed: false,
-                        gimbal_attitude: None,
-                        offboard: true,
-                    },
-                );
+                vehicle.publish(now, level_vehicle(Vector3::new(step as f64, 0.0, -8.0)));
                 // Five frames, then a step with none.
                 if step < 5 {
                     frames.publish(
@@ -884,19 +880,7 @@ mod tests {
         // One frame at `height_m`: did the task report on it?
         let mut look = |height_m: f64| {
             let now = Timestamp::from_millis(1000 * (frame_index + 1));
-            vehicle.publish(
-                now,
-                VehicleState {
-                    attitude: Default::default(),
-                    velocity_ned_m_s: Vector3::zeros(),
-                    acceleration_ned_m_s2: Vector3::zeros(),
-                    height_above_pad_m: height_m,
-                    position_ned_m: Some(Vector3::new(0.0, 0.0, -height_m)),
-                    landed: false,
-                    gimbal_attitude: None,
-                    offboard: true,
-                },
-            );
+            vehicle.publish(now, level_vehicle(Vector3::new(0.0, 0.0, -height_m)));
             frames.publish(
                 now,
                 CameraFrame {
