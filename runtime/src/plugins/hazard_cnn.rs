@@ -38,6 +38,10 @@ use algorithms::vision::image::GrayImage;
 /// A frame's boxes and the wall time they took (preprocessing, inference, decoding), ms.
 type InferenceResult = Result<(Vec<Detection>, f64), TaskError>;
 
+/// The backend on a thread of its own: a frame and its placement in, the placement and the
+/// frame's boxes out.
+type InferencePipeline = Pipeline<(Arc<GrayImage>, Placement), (Placement, InferenceResult)>;
+
 /// What places a frame's boxes on the ground, fixed when the frame is taken up.
 struct Placement {
     frame_index: u64,
@@ -189,7 +193,7 @@ pub struct HazardCnnTask {
     pipelined: bool,
     backend: Option<Box<dyn InferenceBackend>>,
     /// With `pipelined`, the backend on its own thread; a frame's placement travels with it.
-    pipeline: Option<Pipeline<(Arc<GrayImage>, Placement), (Placement, InferenceResult)>>,
+    pipeline: Option<InferencePipeline>,
     backend_name: &'static str,
     frames: Option<Subscriber<CameraFrame>>,
     vehicle: Option<Subscriber<VehicleState>>,
