@@ -675,6 +675,9 @@ pub const FIELD_BAKED_HALF_EXTENT_M: f64 = 300.0;
 /// Texels a tile side; a tile is baked on the first sample that falls in it.
 const TILE_TEXELS: usize = 64;
 
+/// Points [`BakedTexture::sample_many`] takes at a time (stack buffers of a few kilobytes).
+const SAMPLE_CHUNK: usize = 64;
+
 /// A ground texture sampled on a grid of tiles, each computed once on first use and bilinearly
 /// interpolated: a few nanoseconds a sample whatever the source costs, and memory only for the
 /// tiles the camera has seen.
@@ -698,46 +701,89 @@ impl BakedTexture {
         }
     }
 
-    /// [`Self::sample`] at every point: a run of points in one tile looks the tile up once,
-    /// and a run of points in one repetition of the baked square shares its wrap (a tractor
-    /// drives out of the square within minutes; wrapping each point was half a frame's time).
+    /// [`Self::sample`] at every point, [`SAMPLE_CHUNK`] points at a time: a chunk's texel
+    /// coordinates, tiles and fractions are computed in branch-free passes the compiler
+    /// vectorises, with one wrap into the baked square for the whole chunk (a tractor drives
+    /// out of the square within minutes; wrapping each point was half a frame's time), and
+    /// only the texel lookups stay one at a time. A chunk that is not all inside one
+    /// repetition of the square (its edge, a point off the grid) takes the one-point path.
     fn sample_many(&self, points: &[[f64; 2]], out: &mut [f32]) {
+        // The same arithmetic on every CPU (no fused multiply-adds), in wider vectors where
+        // the CPU has them.
+        pulp::Arch::new().dispatch(SampleMany {
+            texture: self,
+            points,
+            out,
+        });
+    }
+
+    #[inline(always)]
+    fn sample_chunks(&self, points: &[[f64; 2]], out: &mut [f32]) {
         let stride = TILE_TEXELS + 1;
         let limit = self.limit_texels;
         let [origin_n, origin_e] = self.origin_m;
-        let mut cached: (usize, &[f32]) = (usize::MAX, &[]);
+        let k = self.texels_per_m;
+        let mut cached: (u32, &[f32]) = (u32::MAX, &[]);
         // Whole repetitions of the square subtracted from the points' texel coordinates.
-        let mut wrap_texels = [0.0f64; 2];
-        let inside = |g: f64| g >= 0.0 && g < limit;
-        for (&[north_m, east_m], value) in points.iter().zip(out) {
-            let raw = [
-                (north_m - origin_n) * self.texels_per_m,
-                (east_m - origin_e) * self.texels_per_m,
-            ];
-            // Exact: the wrap is a whole number of texels (as `rem_euclid` in `locate`).
-            let (mut gn, mut ge) = (raw[0] - wrap_texels[0], raw[1] - wrap_texels[1]);
-            // False for NaN too.
-            if !(inside(gn) && inside(ge)) && raw.iter().all(|g| g.is_finite()) {
-                wrap_texels = raw.map(|g| (g / limit).floor() * limit);
-                (gn, ge) = (raw[0] - wrap_texels[0], raw[1] - wrap_texels[1]);
+        let mut wrap = [0.0f64; 2];
+        let mut texel = [[0.0f64; SAMPLE_CHUNK]; 2];
+        let mut tile = [0u32; SAMPLE_CHUNK];
+        let mut offset = [0u32; SAMPLE_CHUNK];
+        let mut fraction = [[0.0f32; SAMPLE_CHUNK]; 2];
+        for (points, out) in points
+            .chunks(SAMPLE_CHUNK)
+            .zip(out.chunks_mut(SAMPLE_CHUNK))
+        {
+            let n = points.len();
+            let locate = |wrap: [f64; 2], texel: &mut [[f64; SAMPLE_CHUNK]; 2]| {
+                // False for NaN too.
+                let mut inside = true;
+                for (i, &[north_m, east_m]) in points.iter().enumerate() {
+                    // Exact: the wrap is a whole number of texels (as `rem_euclid` in `locate`).
+                    let (gn, ge) = (
+                        (north_m - origin_n) * k - wrap[0],
+                        (east_m - origin_e) * k - wrap[1],
+                    );
+                    texel[0][i] = gn;
+                    texel[1][i] = ge;
+                    inside &= (gn >= 0.0) & (gn < limit) & (ge >= 0.0) & (ge < limit);
+                }
+                inside
+            };
+            if !locate(wrap, &mut texel) {
+                let [north_m, east_m] = points[0];
+                let raw = [(north_m - origin_n) * k, (east_m - origin_e) * k];
+                if raw.iter().all(|g| g.is_finite()) {
+                    wrap = raw.map(|g| (g / limit).floor() * limit);
+                }
+                if !locate(wrap, &mut texel) {
+                    for (&[north_m, east_m], value) in points.iter().zip(out.iter_mut()) {
+                        *value = self.sample(north_m, east_m);
+                    }
+                    continue;
+                }
             }
-            // Off the grid (not finite), or left on the square's far edge by rounding: the
-            // one-point path.
-            if !(inside(gn) && inside(ge)) {
-                *value = self.sample(north_m, east_m);
-                continue;
+            // In range and not negative: truncation is ⌊·⌋, and u32 conversions are cheap.
+            for i in 0..n {
+                let (gn, ge) = (texel[0][i], texel[1][i]);
+                let (in_, ie) = (gn as u32, ge as u32);
+                let per_side = TILE_TEXELS as u32;
+                tile[i] = (in_ / per_side) * self.tiles_per_side as u32 + ie / per_side;
+                offset[i] = (in_ % per_side) * stride as u32 + ie % per_side;
+                fraction[0][i] = (gn - in_ as f64) as f32;
+                fraction[1][i] = (ge - ie as f64) as f32;
             }
-            let (in_, ie) = (gn as u32 as usize, ge as u32 as usize);
-            let index = (in_ / TILE_TEXELS) * self.tiles_per_side + ie / TILE_TEXELS;
-            if index != cached.0 {
-                cached = (index, self.tile(index));
+            for i in 0..n {
+                if tile[i] != cached.0 {
+                    cached = (tile[i], self.tile(tile[i] as usize));
+                }
+                let at = offset[i] as usize;
+                let q = &cached.1[at..at + stride + 2];
+                let (fraction_n, fraction_e) = (fraction[0][i], fraction[1][i]);
+                let top = q[0] + (q[1] - q[0]) * fraction_e;
+                let bottom = q[stride] + (q[stride + 1] - q[stride]) * fraction_e;
+                out[i] = top + (bottom - top) * fraction_n;
             }
-            let offset = (in_ % TILE_TEXELS) * stride + ie % TILE_TEXELS;
-            let q = &cached.1[offset..offset + stride + 2];
-            let (fraction_n, fraction_e) = ((gn - in_ as f64) as f32, (ge - ie as f64) as f32);
-            let top = q[0] + (q[1] - q[0]) * fraction_e;
-            let bottom = q[stride] + (q[stride + 1] - q[stride]) * fraction_e;
-            *value = top + (bottom - top) * fraction_n;
         }
     }
 
@@ -805,6 +851,22 @@ impl BakedTexture {
             }
         }
         values.into_boxed_slice()
+    }
+}
+
+/// [`BakedTexture::sample_many`]'s work, for [`pulp`] to compile for each instruction set.
+struct SampleMany<'a> {
+    texture: &'a BakedTexture,
+    points: &'a [[f64; 2]],
+    out: &'a mut [f32],
+}
+
+impl pulp::WithSimd for SampleMany<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        self.texture.sample_chunks(self.points, self.out);
     }
 }
 

@@ -434,6 +434,54 @@ pub fn render_rows(
     first_row: usize,
     out: &mut [f32],
 ) -> Result<(), RenderError> {
+    // The same arithmetic on every CPU (no fused multiply-adds), in wider vectors where the
+    // CPU has them.
+    pulp::Arch::new().dispatch(RenderRows {
+        camera,
+        pose,
+        scene,
+        supersampling,
+        first_row,
+        out,
+    })
+}
+
+/// [`render_rows`]' arguments, for [`pulp`] to compile its work for each instruction set.
+struct RenderRows<'a> {
+    camera: &'a PinholeCamera,
+    pose: &'a CameraPose,
+    scene: &'a Scene,
+    supersampling: usize,
+    first_row: usize,
+    out: &'a mut [f32],
+}
+
+impl pulp::WithSimd for RenderRows<'_> {
+    type Output = Result<(), RenderError>;
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
+        let Self {
+            camera,
+            pose,
+            scene,
+            supersampling,
+            first_row,
+            out,
+        } = self;
+        render_rows_here(camera, pose, scene, supersampling, first_row, out)
+    }
+}
+
+#[inline(always)]
+fn render_rows_here(
+    camera: &PinholeCamera,
+    pose: &CameraPose,
+    scene: &Scene,
+    supersampling: usize,
+    first_row: usize,
+    out: &mut [f32],
+) -> Result<(), RenderError> {
     let ss = supersampling;
     if !(1..=16).contains(&ss) {
         return Err(RenderError::Supersampling(ss));
