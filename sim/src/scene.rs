@@ -763,15 +763,16 @@ impl BakedTexture {
                     continue;
                 }
             }
-            // In range and not negative: truncation is ⌊·⌋, and u32 conversions are cheap.
+            // In range and not negative: truncation is ⌊·⌋. Through i32, which vector units
+            // convert to and from f64 in one instruction (u32 takes several without AVX-512).
             for i in 0..n {
                 let (gn, ge) = (texel[0][i], texel[1][i]);
-                let (in_, ie) = (gn as u32, ge as u32);
+                let (in_, ie) = (gn as i32 as u32, ge as i32 as u32);
                 let per_side = TILE_TEXELS as u32;
                 tile[i] = (in_ / per_side) * self.tiles_per_side as u32 + ie / per_side;
                 offset[i] = (in_ % per_side) * stride as u32 + ie % per_side;
-                fraction[0][i] = (gn - in_ as f64) as f32;
-                fraction[1][i] = (ge - ie as f64) as f32;
+                fraction[0][i] = (gn - f64::from(in_ as i32)) as f32;
+                fraction[1][i] = (ge - f64::from(ie as i32)) as f32;
             }
             for i in 0..n {
                 if tile[i] != cached.0 {

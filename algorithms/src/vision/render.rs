@@ -525,9 +525,11 @@ fn render_rows_here(
     };
 
     let mut candidates: Vec<&PreparedPatch<'_>> = Vec::with_capacity(prepared.len());
-    // Without distortion, the columns whose samples may meet one of the row's patches; the
-    // others (most of a frame: the ground) skip the patch tests, which they would all fail.
-    let mut may_meet_patch = vec![!undistorted; width];
+    // The row's columns as runs that may meet one of its patches or may not: without
+    // distortion, the others (most of a frame: the ground) skip the patch tests, which they
+    // would all fail; with it, one run that may.
+    let mut patch_spans: Vec<(usize, usize)> = Vec::new();
+    let mut runs: Vec<(std::ops::Range<usize>, bool)> = Vec::new();
     let ground_height_m = scene.ground_down_m - origin.z;
     // The fast path's row buffers, and each column's normalised x (the same in every row).
     let mut ground_points = vec![[0f64; 2]; width];
@@ -549,8 +551,9 @@ fn render_rows_here(
                 .iter()
                 .filter(|p| !undistorted || (p.bounds[2] <= row_y1 && p.bounds[3] >= row_y0)),
         );
+        runs.clear();
         if undistorted {
-            may_meet_patch.fill(false);
+            patch_spans.clear();
             for p in &candidates {
                 // Columns whose first or last sample's x can fall within the patch's bounds
                 // (an infinite bound saturates the conversion to the image's edge).
@@ -568,9 +571,28 @@ fn render_rows_here(
                 let last = ((x1 * camera.fx_px + camera.cx_px - offsets[0]).ceil() + 1.0)
                     .clamp(0.0, width as f64) as usize;
                 if first < last {
-                    may_meet_patch[first..last].fill(true);
+                    patch_spans.push((first, last));
                 }
             }
+            patch_spans.sort_unstable();
+            let mut next = 0;
+            for &(first, last) in &patch_spans {
+                match runs.last_mut() {
+                    Some((run, true)) if first <= run.end => run.end = run.end.max(last),
+                    _ => {
+                        if next < first {
+                            runs.push((next..first, false));
+                        }
+                        runs.push((first..last, true));
+                    }
+                }
+                next = runs.last().map_or(0, |(run, _)| run.end);
+            }
+            if next < width {
+                runs.push((next..width, false));
+            }
+        } else {
+            runs.push((0..width, true));
         }
         // One sample per pixel without distortion: every pixel's ray meets the ground at a
         // point that is a plain function of its column (ray(x) = c0 + x·c1 in the row), so the
@@ -607,53 +629,52 @@ fn render_rows_here(
                 *out = if point[0].is_nan() { scene.sky } else { value }.clamp(0.0, 1.0);
             }
         }
-        for (col, out) in row_out.iter_mut().enumerate() {
-            if fast_row && !may_meet_patch[col] {
+        for (columns, may_meet_patch) in runs.iter().cloned() {
+            if fast_row && !may_meet_patch {
                 continue;
             }
-            let candidates: &[&PreparedPatch<'_>] = if may_meet_patch[col] {
-                &candidates
-            } else {
-                &[]
-            };
-            let mut sum = 0f32;
-            // The background is texture, not truth: it is sampled once per pixel, at the centroid
-            // of the samples that see it, which makes supersampling cost little more than the
-            // patches' edges need. Patches are sampled at every sample.
-            let (mut ground_n, mut ground_e, mut ground_samples) = (0.0, 0.0, 0u32);
-            for &dv in &offsets {
-                for &du in &offsets {
-                    let (u, v) = (col as f64 + du, row as f64 + dv);
-                    let (x, y) = if undistorted {
-                        (
-                            (u - camera.cx_px) / camera.fx_px,
-                            (v - camera.cy_px) / camera.fy_px,
-                        )
-                    } else {
-                        camera.normalized(u, v)
-                    };
-                    // The ray need not be unit length: the plane intersection scales with it.
-                    let ray = Vector3::new(
-                        r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)],
-                        r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)],
-                        r[(2, 0)] * x + r[(2, 1)] * y + r[(2, 2)],
-                    );
-                    match shade(candidates, x, y, ray) {
-                        Ok(value) => sum += value.clamp(0.0, 1.0),
-                        Err((n, e)) => {
-                            ground_n += n;
-                            ground_e += e;
-                            ground_samples += 1;
+            let candidates: &[&PreparedPatch<'_>] = if may_meet_patch { &candidates } else { &[] };
+            for col in columns {
+                let out = &mut row_out[col];
+                let mut sum = 0f32;
+                // The background is texture, not truth: it is sampled once per pixel, at the
+                // centroid of the samples that see it, which makes supersampling cost little
+                // more than the patches' edges need. Patches are sampled at every sample.
+                let (mut ground_n, mut ground_e, mut ground_samples) = (0.0, 0.0, 0u32);
+                for &dv in &offsets {
+                    for &du in &offsets {
+                        let (u, v) = (col as f64 + du, row as f64 + dv);
+                        let (x, y) = if undistorted {
+                            (
+                                (u - camera.cx_px) / camera.fx_px,
+                                (v - camera.cy_px) / camera.fy_px,
+                            )
+                        } else {
+                            camera.normalized(u, v)
+                        };
+                        // The ray need not be unit length: the plane intersection scales with it.
+                        let ray = Vector3::new(
+                            r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)],
+                            r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)],
+                            r[(2, 0)] * x + r[(2, 1)] * y + r[(2, 2)],
+                        );
+                        match shade(candidates, x, y, ray) {
+                            Ok(value) => sum += value.clamp(0.0, 1.0),
+                            Err((n, e)) => {
+                                ground_n += n;
+                                ground_e += e;
+                                ground_samples += 1;
+                            }
                         }
                     }
                 }
+                if ground_samples > 0 {
+                    let k = ground_samples as f64;
+                    let value = scene.background.sample(ground_n / k, ground_e / k);
+                    sum += ground_samples as f32 * value.clamp(0.0, 1.0);
+                }
+                *out = sum * inv_samples;
             }
-            if ground_samples > 0 {
-                let k = ground_samples as f64;
-                let value = scene.background.sample(ground_n / k, ground_e / k);
-                sum += ground_samples as f32 * value.clamp(0.0, 1.0);
-            }
-            *out = sum * inv_samples;
         }
     }
     Ok(())
