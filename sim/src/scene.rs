@@ -734,7 +734,7 @@ impl BakedTexture {
             .chunks(SAMPLE_CHUNK)
             .zip(out.chunks_mut(SAMPLE_CHUNK))
         {
-            let n = points.len();
+            let n = points.len().min(SAMPLE_CHUNK);
             let locate = |wrap: [f64; 2], texel: &mut [[f64; SAMPLE_CHUNK]; 2]| {
                 // False for NaN too.
                 let mut inside = true;
@@ -763,16 +763,22 @@ impl BakedTexture {
                     continue;
                 }
             }
-            // In range and not negative: truncation is ⌊·⌋. Through i32, which vector units
-            // convert to and from f64 in one instruction (u32 takes several without AVX-512).
+            // In range and not negative, so ⌊·⌋ is a whole number below 2^52: added to 2^52,
+            // it is the low bits of the sum's representation. An `as` cast would check each
+            // value for NaN and range, one lane at a time.
+            const TWO_TO_52: f64 = 4_503_599_627_370_496.0;
             for i in 0..n {
                 let (gn, ge) = (texel[0][i], texel[1][i]);
-                let (in_, ie) = (gn as i32 as u32, ge as i32 as u32);
+                let (floor_n, floor_e) = (gn.floor(), ge.floor());
+                let (in_, ie) = (
+                    (floor_n + TWO_TO_52).to_bits() as u32,
+                    (floor_e + TWO_TO_52).to_bits() as u32,
+                );
                 let per_side = TILE_TEXELS as u32;
                 tile[i] = (in_ / per_side) * self.tiles_per_side as u32 + ie / per_side;
                 offset[i] = (in_ % per_side) * stride as u32 + ie % per_side;
-                fraction[0][i] = (gn - f64::from(in_ as i32)) as f32;
-                fraction[1][i] = (ge - f64::from(ie as i32)) as f32;
+                fraction[0][i] = (gn - floor_n) as f32;
+                fraction[1][i] = (ge - floor_e) as f32;
             }
             for i in 0..n {
                 if tile[i] != cached.0 {
