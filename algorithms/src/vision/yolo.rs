@@ -176,22 +176,29 @@ pub fn letterbox_gray(
     };
     let columns = spans(input_width_px, letterbox.pad_x_px, width);
     let rows = spans(input_height_px, letterbox.pad_y_px, height);
-    for (y, row_weights) in rows.iter().enumerate() {
+    // An input row's image rows are looked up once, not once per input pixel.
+    let mut image_rows: Vec<(&[u8], f32)> = Vec::new();
+    for (row_weights, input_row) in rows.iter().zip(input.chunks_exact_mut(input_width_px)) {
         if row_weights.is_empty() {
             continue;
         }
-        for (x, column_weights) in columns.iter().enumerate() {
+        image_rows.clear();
+        image_rows.extend(
+            row_weights
+                .iter()
+                .map(|&(image_y, wy)| (image.row(image_y), wy)),
+        );
+        for (column_weights, value) in columns.iter().zip(input_row.iter_mut()) {
             if column_weights.is_empty() {
                 continue;
             }
             let mut sum = 0.0f32;
-            for &(image_y, wy) in row_weights {
-                let row = image.row(image_y);
+            for &(row, wy) in &image_rows {
                 for &(image_x, wx) in column_weights {
                     sum += wy * wx * f32::from(row[image_x]);
                 }
             }
-            input[y * input_width_px + x] = sum / 255.0;
+            *value = sum / 255.0;
         }
     }
     (input, letterbox)
