@@ -735,7 +735,7 @@ impl BakedTexture {
             .zip(out.chunks_mut(SAMPLE_CHUNK))
         {
             let n = points.len().min(SAMPLE_CHUNK);
-            let locate = |wrap: [f64; 2], texel: &mut [[f64; SAMPLE_CHUNK]; 2]| {
+            let texel_coordinates = |wrap: [f64; 2], texel: &mut [[f64; SAMPLE_CHUNK]; 2]| {
                 // False for NaN too.
                 let mut inside = true;
                 for (i, &[north_m, east_m]) in points.iter().enumerate() {
@@ -750,13 +750,13 @@ impl BakedTexture {
                 }
                 inside
             };
-            if !locate(wrap, &mut texel) {
+            if !texel_coordinates(wrap, &mut texel) {
                 let [north_m, east_m] = points[0];
                 let raw = [(north_m - origin_n) * k, (east_m - origin_e) * k];
                 if raw.iter().all(|g| g.is_finite()) {
                     wrap = raw.map(|g| (g / limit).floor() * limit);
                 }
-                if !locate(wrap, &mut texel) {
+                if !texel_coordinates(wrap, &mut texel) {
                     for (&[north_m, east_m], value) in points.iter().zip(out.iter_mut()) {
                         *value = self.sample(north_m, east_m);
                     }
@@ -784,12 +784,13 @@ impl BakedTexture {
                 if tile[i] != cached.0 {
                     cached = (tile[i], self.tile(tile[i] as usize));
                 }
-                let at = offset[i] as usize;
-                let q = &cached.1[at..at + stride + 2];
-                let (fraction_n, fraction_e) = (fraction[0][i], fraction[1][i]);
-                let top = q[0] + (q[1] - q[0]) * fraction_e;
-                let bottom = q[stride] + (q[stride + 1] - q[stride]) * fraction_e;
-                out[i] = top + (bottom - top) * fraction_n;
+                let texel = Texel {
+                    tile: tile[i] as usize,
+                    offset: offset[i] as usize,
+                    fraction_n: fraction[0][i],
+                    fraction_e: fraction[1][i],
+                };
+                out[i] = self.interpolate(cached.1, &texel);
             }
         }
     }
@@ -836,6 +837,7 @@ impl BakedTexture {
         self.tiles[index].get_or_init(|| self.bake(tile_n, tile_e))
     }
 
+    #[inline(always)]
     fn interpolate(&self, tile: &[f32], texel: &Texel) -> f32 {
         let stride = TILE_TEXELS + 1;
         // The offset is at most (TILE_TEXELS − 1)·(stride + 1), so the two rows the

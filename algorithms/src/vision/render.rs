@@ -461,27 +461,21 @@ impl pulp::WithSimd for RenderRows<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) -> Self::Output {
-        let Self {
-            camera,
-            pose,
-            scene,
-            supersampling,
-            first_row,
-            out,
-        } = self;
-        render_rows_here(camera, pose, scene, supersampling, first_row, out)
+        render_rows_here(self)
     }
 }
 
+/// [`render_rows`]' work, inlined into each instruction set's copy.
 #[inline(always)]
-fn render_rows_here(
-    camera: &PinholeCamera,
-    pose: &CameraPose,
-    scene: &Scene,
-    supersampling: usize,
-    first_row: usize,
-    out: &mut [f32],
-) -> Result<(), RenderError> {
+fn render_rows_here(rows: RenderRows<'_>) -> Result<(), RenderError> {
+    let RenderRows {
+        camera,
+        pose,
+        scene,
+        supersampling,
+        first_row,
+        out,
+    } = rows;
     let ss = supersampling;
     if !(1..=16).contains(&ss) {
         return Err(RenderError::Supersampling(ss));
