@@ -27,6 +27,7 @@ use thiserror::Error;
 
 use super::mpc::{MpcConfig, MpcController, MpcError, MpcInput};
 use super::pid::{HorizontalPid, PidConfig, PidError, PidInput};
+use super::wind_shear::descent_feed_forward_ne_m_s;
 
 /// Which controller steers horizontally while a fix is in hand.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -134,6 +135,11 @@ pub struct LandingConfig {
     /// Low-pass time constant on the keep-in-view offset ([`LandingInput::pad_in_view_offset_per_height`]):
     /// it follows the lean the wind holds, not each manoeuvre's.
     pub keep_in_view_tau_s: f64,
+    /// Wind-shear feed-forward while descending: the roughness length of the ground's
+    /// logarithmic wind profile (0.05 m over crops). 0 (the default): off, the seed's law.
+    pub wind_shear_roughness_m: f64,
+    /// How far ahead the descent's wind is predicted, about the velocity loop's lag.
+    pub wind_shear_lead_s: f64,
     pub pid: PidConfig,
     pub controller: HorizontalController,
 }
@@ -164,6 +170,8 @@ impl Default for LandingConfig {
             max_wind_compensation_m_s: 3.0,
             autopilot_velocity_tau_s: 0.4,
             keep_in_view_tau_s: 1.0,
+            wind_shear_roughness_m: 0.0,
+            wind_shear_lead_s: 0.3,
             pid: PidConfig::default(),
             controller: HorizontalController::Pid,
         }
@@ -211,6 +219,8 @@ impl LandingConfig {
             ("max_wind_compensation_m_s", self.max_wind_compensation_m_s),
             ("autopilot_velocity_tau_s", self.autopilot_velocity_tau_s),
             ("keep_in_view_tau_s", self.keep_in_view_tau_s),
+            ("wind_shear_roughness_m", self.wind_shear_roughness_m),
+            ("wind_shear_lead_s", self.wind_shear_lead_s),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(config_error(name, value, "must be a finite number ≥ 0"));
@@ -325,6 +335,19 @@ pub struct LandingInput {
     /// wind the vehicle leans further than its camera's half field of view and follows from
     /// upwind instead, by this times its height, so the offset vanishes at touchdown.
     pub pad_in_view_offset_per_height: Vector2<f64>,
+    /// The wind the vehicle leans against and its height above the ground, when the autopilot
+    /// reports them: the descent's wind-shear feed-forward works from it.
+    pub near_ground_wind: Option<NearGroundWind>,
+}
+
+/// What the wind does to the vehicle now, and where.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NearGroundWind {
+    /// Height above the ground (not the pad), m.
+    pub altitude_m: f64,
+    /// The horizontal aerodynamic acceleration on the vehicle, NE
+    /// ([`super::wind_shear::aerodynamic_accel_ne_m_s2`]).
+    pub aerodynamic_accel_ne_m_s2: Vector2<f64>,
 }
 
 /// One step's output.
@@ -354,6 +377,9 @@ impl LandingOutput {
         }
     }
 }
+
+/// Low-pass time constant on the aerodynamic acceleration (the link differentiates velocities).
+const AERODYNAMIC_ACCEL_TAU_S: f64 = 0.2;
 
 /// Reacquire's pull towards the predicted pad position, per second of offset…
 const REACQUIRE_GAIN_PER_S: f64 = 0.5;
@@ -466,6 +492,8 @@ struct Machine {
     pad_in_view_offset_per_height: Option<Vector2<f64>>,
     /// How far Search's commands have moved the vehicle since it began.
     search_displacement_ne_m: Vector2<f64>,
+    /// The aerodynamic acceleration on the vehicle, low-passed.
+    aerodynamic_accel_ne_m_s2: Option<Vector2<f64>>,
 }
 
 impl Machine {
@@ -487,6 +515,7 @@ impl Machine {
             velocity_shortfall_ne_m_s: Vector2::zeros(),
             pad_in_view_offset_per_height: None,
             search_displacement_ne_m: Vector2::zeros(),
+            aerodynamic_accel_ne_m_s2: None,
         })
     }
 
@@ -578,6 +607,19 @@ impl Machine {
             None => raw_offset,
         };
         self.pad_in_view_offset_per_height = Some(view_offset);
+        let wind = input.near_ground_wind.filter(|wind| {
+            wind.altitude_m.is_finite()
+                && wind.aerodynamic_accel_ne_m_s2.iter().all(|v| v.is_finite())
+        });
+        self.aerodynamic_accel_ne_m_s2 = wind.map(|wind| {
+            let raw = wind.aerodynamic_accel_ne_m_s2;
+            match self.aerodynamic_accel_ne_m_s2 {
+                Some(filtered) => {
+                    filtered + (dt_s / (AERODYNAMIC_ACCEL_TAU_S + dt_s)) * (raw - filtered)
+                }
+                None => raw,
+            }
+        });
         // Where the vehicle holds itself relative to the pad (UAV − pad): over it, or upwind
         // by what keeps the pad in view.
         let setpoint_ne_m = -view_offset * height_m.max(0.0);
@@ -654,6 +696,25 @@ impl Machine {
                 (h, c.final_descent_speed_m_s, true)
             }
             LandingMode::Landed => (Vector2::zeros(), 0.0, true),
+        };
+        // Descending into the weaker wind near the ground: lean less before the velocity loop
+        // finds out.
+        let horizontal = match (wind, self.aerodynamic_accel_ne_m_s2) {
+            (Some(wind), Some(aero))
+                if c.wind_shear_roughness_m > 0.0
+                    && vertical_down_m_s > 0.0
+                    && matches!(self.mode, LandingMode::Descend | LandingMode::FinalLanding) =>
+            {
+                horizontal
+                    + descent_feed_forward_ne_m_s(
+                        aero,
+                        wind.altitude_m,
+                        vertical_down_m_s * c.wind_shear_lead_s,
+                        c.wind_shear_roughness_m,
+                        c.autopilot_velocity_tau_s,
+                    )
+            }
+            _ => horizontal,
         };
         // The autopilot's shortfall is made up while the vehicle steers (not while it only
         // holds still in Search, nor on the ground).
@@ -849,6 +910,7 @@ mod tests {
             predicted_uav_minus_pad_ne_m: None,
             setpoints_followed: true,
             pad_in_view_offset_per_height: Vector2::zeros(),
+            near_ground_wind: None,
         }
     }
 
@@ -900,6 +962,7 @@ mod tests {
                     uav_velocity_ne_m_s: velocity,
                     platform_velocity_ne_m_s: platform,
                     pad_in_view_offset_per_height: per_height,
+                    near_ground_wind: None,
                     ..input(
                         t_s,
                         fix_at((uav - pad).x, (uav - pad).y, height_m),
@@ -974,6 +1037,7 @@ mod tests {
                     uav_velocity_ne_m_s: velocity,
                     platform_velocity_ne_m_s: Vector2::zeros(),
                     pad_in_view_offset_per_height: per_height,
+                    near_ground_wind: None,
                     ..input(step as f64 * DT_S, None, 7.5)
                 })
                 .unwrap();
@@ -1027,6 +1091,118 @@ mod tests {
         assert!(with < 0.05, "with the feed-forward still {with} m/s off");
     }
 
+    /// Descending at 0.7 m/s from 3 m above the ground with the wind pushing west at 4 m/s²:
+    /// the command moves west by what the log profile takes off the force 0.3 s lower, over
+    /// the velocity loop's gain (worked out here by hand); not while the vehicle only follows.
+    #[test]
+    fn the_wind_shear_feed_forward_leans_less_only_while_descending() {
+        let config = LandingConfig {
+            wind_shear_roughness_m: 0.05,
+            ..LandingConfig::default()
+        };
+        let wind = NearGroundWind {
+            altitude_m: 3.0,
+            aerodynamic_accel_ne_m_s2: Vector2::new(0.0, -4.0),
+        };
+        let command = |descent_allowed: bool, wind: Option<NearGroundWind>| {
+            let mut c = LandingController::new(config).unwrap();
+            let mut t_s = 0.0;
+            let mut out = None;
+            for _ in 0..40 {
+                t_s += DT_S;
+                out = Some(
+                    c.step(&LandingInput {
+                        descent_allowed,
+                        near_ground_wind: wind,
+                        ..input(t_s, fix_at(0.0, 0.0, 7.5), 7.5)
+                    })
+                    .unwrap(),
+                );
+            }
+            out.unwrap()
+        };
+        let descending = command(true, Some(wind));
+        assert_eq!(descending.mode, LandingMode::Descend);
+        let plain = command(true, None);
+        let ratio = ((2.79f64 / 0.05).ln() / (3.0f64 / 0.05).ln()).powi(2);
+        let expected_east_m_s = -4.0 * (1.0 - ratio) * config.autopilot_velocity_tau_s;
+        let shift = descending.velocity_setpoint_ned_m_s - plain.velocity_setpoint_ned_m_s;
+        assert!(shift.x.abs() < 1e-12 && shift.z == 0.0, "{shift:?}");
+        assert!((shift.y - expected_east_m_s).abs() < 1e-9, "{shift:?}");
+        let following = command(false, Some(wind));
+        assert_eq!(following.mode, LandingMode::Follow);
+        assert_eq!(following, command(false, None));
+    }
+
+    /// Closed loop, east only: a velocity loop (proportional 1/τ, a slow integrator) holds the
+    /// vehicle over the pad against a west wind that weakens by the log profile as it comes
+    /// down onto a pad 1 m above the ground, with the reference mission's close-in gains. Its
+    /// integrator holds the lean of the wind aloft, so the vehicle drifts upwind on the way
+    /// down (7 cm); the feed-forward takes a third of that off.
+    #[test]
+    fn the_wind_shear_feed_forward_keeps_the_descent_over_the_pad() {
+        let roughness_m = 0.05;
+        let pad_altitude_m = 1.0;
+        let wind_at = |altitude_m: f64| {
+            -4.0 * ((altitude_m / roughness_m).ln() / (8.5f64 / roughness_m).ln()).powi(2)
+        };
+        let land = |wind_shear_roughness_m: f64| {
+            // The reference mission's close-in PID and final descent.
+            let mut pid = PidConfig::default();
+            pid.gains.low.kp_per_s = 8.0;
+            pid.gains.low.kd = 2.5;
+            let config = LandingConfig {
+                wind_shear_roughness_m,
+                final_descent_speed_m_s: 2.0,
+                pid,
+                ..LandingConfig::default()
+            };
+            let gain_per_s = 1.0 / config.autopilot_velocity_tau_s;
+            let mut c = LandingController::new(config).unwrap();
+            let (mut east_m, mut velocity_m_s, mut height_m) = (0.0, 0.0, 7.5);
+            // Settled at IH: the integrator holds the wind there.
+            let mut integral_m_s2 = -wind_at(pad_altitude_m + height_m);
+            let mut worst_m: f64 = 0.0;
+            for step in 1..4000 {
+                let t_s = step as f64 * 0.02;
+                let aero = wind_at(pad_altitude_m + height_m);
+                let out = c
+                    .step(&LandingInput {
+                        platform_velocity_ne_m_s: Vector2::zeros(),
+                        uav_velocity_ne_m_s: Vector2::new(0.0, velocity_m_s),
+                        near_ground_wind: Some(NearGroundWind {
+                            altitude_m: pad_altitude_m + height_m,
+                            aerodynamic_accel_ne_m_s2: Vector2::new(0.0, aero),
+                        }),
+                        ..input(t_s, fix_at(0.0, east_m, height_m), height_m)
+                    })
+                    .unwrap();
+                if out.mode == LandingMode::Landed {
+                    return (east_m.abs(), worst_m);
+                }
+                let error_m_s = out.velocity_setpoint_ned_m_s.y - velocity_m_s;
+                integral_m_s2 += 0.4 * error_m_s * 0.02;
+                velocity_m_s += (gain_per_s * error_m_s + integral_m_s2 + aero) * 0.02;
+                east_m += velocity_m_s * 0.02;
+                height_m = (height_m - out.velocity_setpoint_ned_m_s.z * 0.02).max(0.0);
+                if height_m < 2.0 {
+                    worst_m = worst_m.max(east_m.abs());
+                }
+            }
+            panic!("never landed");
+        };
+        let (without_m, worst_without_m) = land(0.0);
+        let (with_m, worst_with_m) = land(roughness_m);
+        assert!(
+            without_m > 0.04,
+            "the shear should push it off: {without_m} m"
+        );
+        assert!(
+            with_m < 0.75 * without_m && worst_with_m < 0.75 * worst_without_m,
+            "touchdown {with_m} m against {without_m} m, worst below 2 m {worst_with_m} against {worst_without_m} m"
+        );
+    }
+
     /// A vehicle held still by its autopilot (a failsafe, a pilot) while the guidance asks for
     /// 2 m/s: told its setpoints are not flown, the controller learns no wind, and once they
     /// are flown again it asks for what it would ask of a vehicle that had never been held.
@@ -1043,6 +1219,7 @@ mod tests {
                 platform_velocity_ne_m_s: platform,
                 setpoints_followed: followed,
                 pad_in_view_offset_per_height: Vector2::zeros(),
+                near_ground_wind: None,
                 ..input(t_s, fix_at(0.0, 0.0, 7.5), 7.5)
             })
             .unwrap()
@@ -1349,6 +1526,7 @@ mod tests {
         let mut c = LandingController::new(LandingConfig::default()).unwrap();
         let bad = LandingInput {
             pad_in_view_offset_per_height: Vector2::new(f64::NAN, 0.0),
+            near_ground_wind: None,
             ..input(0.1, None, 7.5)
         };
         assert_eq!(

@@ -5,6 +5,7 @@ pub mod landing;
 pub mod mpc;
 pub mod pid;
 pub mod point_mass;
+pub mod wind_shear;
 
 #[cfg(test)]
 pub(crate) mod closed_loop_tests {
@@ -108,6 +109,7 @@ pub(crate) mod closed_loop_tests {
                         predicted_uav_minus_pad_ne_m: None,
                         setpoints_followed: true,
                         pad_in_view_offset_per_height: Vector2::zeros(),
+                        near_ground_wind: None,
                     })
                     .unwrap();
                 if out.land_command && committed_at_s.is_nan() {

@@ -16,9 +16,12 @@ use crate::topics::{
     RELATIVE_STATE, VEHICLE_STATE,
 };
 use algorithms::control::landing::{
-    HorizontalController, LandingConfig, LandingController, LandingInput, RelativeFix,
+    HorizontalController, LandingConfig, LandingController, LandingInput, NearGroundWind,
+    RelativeFix,
 };
 use algorithms::control::mpc::MpcConfig;
+use algorithms::control::pid::TwoStageGains;
+use algorithms::control::wind_shear::aerodynamic_accel_ne_m_s2;
 use algorithms::estimation::camera_mount::CameraMount;
 use algorithms::estimation::projection::pad_in_view_offset_ne_m;
 use algorithms::vision::camera::PinholeCamera;
@@ -55,6 +58,19 @@ struct Params {
     /// Integral gain of the PID's close-in stage (seed 000's Table 2: 0).
     #[serde(default)]
     integral_gain_close_per_s2: f64,
+    /// Proportional and derivative gains of the PID's close-in stage (seed 000's Table 2:
+    /// 1.5 and 0.5).
+    #[serde(default = "default_proportional_gain_close")]
+    proportional_gain_close_per_s: f64,
+    #[serde(default = "default_derivative_gain_close")]
+    derivative_gain_close: f64,
+    /// Wind-shear feed-forward while descending: the roughness length of the ground's
+    /// logarithmic wind profile (0.05 m over crops; 0: off).
+    #[serde(default)]
+    wind_shear_roughness_m: f64,
+    /// How far ahead the descent's wind is predicted.
+    #[serde(default = "default_wind_shear_lead")]
+    wind_shear_lead_s: f64,
     #[serde(default)]
     controller: ControllerKind,
     /// The MPC's horizon in seconds; its step count follows from the QoS period.
@@ -96,6 +112,15 @@ enum ControllerKind {
     Mpc,
 }
 
+fn default_proportional_gain_close() -> f64 {
+    TwoStageGains::seed_simulation().low.kp_per_s
+}
+fn default_derivative_gain_close() -> f64 {
+    TwoStageGains::seed_simulation().low.kd
+}
+fn default_wind_shear_lead() -> f64 {
+    LandingConfig::default().wind_shear_lead_s
+}
 fn default_mpc_horizon() -> f64 {
     1.0
 }
@@ -177,9 +202,13 @@ impl GuidanceTask {
             final_landing_height_m: params.final_altitude_m,
             final_descent_speed_m_s: params.final_descent_speed_m_s,
             wind_compensation_tau_s: params.wind_compensation_tau_s,
+            wind_shear_roughness_m: params.wind_shear_roughness_m,
+            wind_shear_lead_s: params.wind_shear_lead_s,
             pid: {
                 let mut pid = defaults.pid;
                 pid.gains.low.ki_per_s2 = params.integral_gain_close_per_s2;
+                pid.gains.low.kp_per_s = params.proportional_gain_close_per_s;
+                pid.gains.low.kd = params.derivative_gain_close;
                 pid
             },
             controller,
@@ -291,6 +320,16 @@ impl Task for GuidanceTask {
                     pad_in_view_offset_ne_m(camera, &camera_attitude, 1.0, *margin)
                 })
                 .unwrap_or_else(Vector2::zeros),
+            near_ground_wind: state.position_ned_m.and_then(|position| {
+                aerodynamic_accel_ne_m_s2(
+                    &state.attitude.body_to_ned(),
+                    &state.acceleration_ned_m_s2,
+                )
+                .map(|aerodynamic_accel_ne_m_s2| NearGroundWind {
+                    altitude_m: -position.z,
+                    aerodynamic_accel_ne_m_s2,
+                })
+            }),
         });
         match step {
             Ok(out) => {
@@ -370,21 +409,37 @@ mod tests {
     #[test]
     fn the_wind_parameters_are_taken_and_checked() {
         let windy = task(
-            "wind_compensation_tau_s = 1.0\nintegral_gain_close_per_s2 = 0.5\nfinal_descent_speed_m_s = 1.5",
+            "wind_compensation_tau_s = 1.0\nintegral_gain_close_per_s2 = 0.5\nfinal_descent_speed_m_s = 1.5\n\
+             proportional_gain_close_per_s = 8.0\nderivative_gain_close = 2.5\n\
+             wind_shear_roughness_m = 0.05\nwind_shear_lead_s = 0.4",
         )
         .unwrap();
         let config = windy.controller.config();
         assert_eq!(config.wind_compensation_tau_s, 1.0);
         assert_eq!(config.pid.gains.low.ki_per_s2, 0.5);
+        assert_eq!(config.pid.gains.low.kp_per_s, 8.0);
+        assert_eq!(config.pid.gains.low.kd, 2.5);
         assert_eq!(config.final_descent_speed_m_s, 1.5);
-        // Unset, they are the seed's law.
+        assert_eq!(config.wind_shear_roughness_m, 0.05);
+        assert_eq!(config.wind_shear_lead_s, 0.4);
+        // Unset, they are the seed's law (Table 2's close-in gains, no feed-forward).
         let plain = task("").unwrap();
-        assert_eq!(plain.controller.config().wind_compensation_tau_s, 0.0);
-        assert_eq!(plain.controller.config().pid.gains.low.ki_per_s2, 0.0);
+        let plain = plain.controller.config();
+        assert_eq!(plain.wind_compensation_tau_s, 0.0);
+        assert_eq!(plain.pid.gains.low.ki_per_s2, 0.0);
+        assert_eq!(
+            (plain.pid.gains.low.kp_per_s, plain.pid.gains.low.kd),
+            (1.5, 0.5)
+        );
+        assert_eq!(plain.wind_shear_roughness_m, 0.0);
         for (params, name) in [
             ("wind_compensation_tau_s = -1.0", "wind_compensation_tau_s"),
             ("final_descent_speed_m_s = 0.0", "final_descent_speed_m_s"),
             ("integral_gain_close_per_s2 = -0.5", "ki_per_s2"),
+            ("proportional_gain_close_per_s = -8.0", "kp_per_s"),
+            ("derivative_gain_close = -1.0", "kd"),
+            ("wind_shear_roughness_m = -0.05", "wind_shear_roughness_m"),
+            ("wind_shear_lead_s = -0.3", "wind_shear_lead_s"),
         ] {
             let Err(TaskError::Params(why)) = task(params) else {
                 panic!("{params} must be refused");
