@@ -64,6 +64,9 @@ struct Params {
     proportional_gain_close_per_s: f64,
     #[serde(default = "default_derivative_gain_close")]
     derivative_gain_close: f64,
+    /// Below this height above the pad the close-in gains fly (seed 000's Table 2: 4 m).
+    #[serde(default = "default_gain_switch_height")]
+    gain_switch_height_m: f64,
     /// Wind-shear feed-forward while descending: the roughness length of the ground's
     /// logarithmic wind profile (0.05 m over crops; 0: off).
     #[serde(default)]
@@ -117,6 +120,9 @@ fn default_proportional_gain_close() -> f64 {
 }
 fn default_derivative_gain_close() -> f64 {
     TwoStageGains::seed_simulation().low.kd
+}
+fn default_gain_switch_height() -> f64 {
+    TwoStageGains::seed_simulation().switch_height_m
 }
 fn default_wind_shear_lead() -> f64 {
     LandingConfig::default().wind_shear_lead_s
@@ -209,6 +215,7 @@ impl GuidanceTask {
                 pid.gains.low.ki_per_s2 = params.integral_gain_close_per_s2;
                 pid.gains.low.kp_per_s = params.proportional_gain_close_per_s;
                 pid.gains.low.kd = params.derivative_gain_close;
+                pid.gains.switch_height_m = params.gain_switch_height_m;
                 pid
             },
             controller,
@@ -411,7 +418,7 @@ mod tests {
         let windy = task(
             "wind_compensation_tau_s = 1.0\nintegral_gain_close_per_s2 = 0.5\nfinal_descent_speed_m_s = 1.5\n\
              proportional_gain_close_per_s = 8.0\nderivative_gain_close = 2.5\n\
-             wind_shear_roughness_m = 0.05\nwind_shear_lead_s = 0.4",
+             wind_shear_roughness_m = 0.05\nwind_shear_lead_s = 0.4\ngain_switch_height_m = 1.5",
         )
         .unwrap();
         let config = windy.controller.config();
@@ -419,6 +426,7 @@ mod tests {
         assert_eq!(config.pid.gains.low.ki_per_s2, 0.5);
         assert_eq!(config.pid.gains.low.kp_per_s, 8.0);
         assert_eq!(config.pid.gains.low.kd, 2.5);
+        assert_eq!(config.pid.gains.switch_height_m, 1.5);
         assert_eq!(config.final_descent_speed_m_s, 1.5);
         assert_eq!(config.wind_shear_roughness_m, 0.05);
         assert_eq!(config.wind_shear_lead_s, 0.4);
@@ -432,6 +440,7 @@ mod tests {
             (1.5, 0.5)
         );
         assert_eq!(plain.wind_shear_roughness_m, 0.0);
+        assert_eq!(plain.pid.gains.switch_height_m, 4.0);
         for (params, name) in [
             ("wind_compensation_tau_s = -1.0", "wind_compensation_tau_s"),
             ("final_descent_speed_m_s = 0.0", "final_descent_speed_m_s"),
