@@ -565,8 +565,12 @@ impl Machine {
         {
             let dt_s = time_s - previous_s;
             let raw = (input.platform_velocity_ne_m_s - previous_v) / dt_s;
-            let alpha = dt_s / (c.platform_accel_filter_tau_s + dt_s);
-            self.platform_accel_ne_m_s2 += alpha * (raw - self.platform_accel_ne_m_s2);
+            self.platform_accel_ne_m_s2 = low_pass(
+                self.platform_accel_ne_m_s2,
+                raw,
+                dt_s,
+                c.platform_accel_filter_tau_s,
+            );
         }
         self.previous_platform_velocity_ne_m_s = Some(input.platform_velocity_ne_m_s);
         if !input.setpoints_followed {
@@ -581,17 +585,19 @@ impl Machine {
         {
             if c.wind_compensation_tau_s > 0.0 {
                 let dt_s = time_s - previous_s;
-                let lag = dt_s / (c.autopilot_velocity_tau_s + dt_s);
                 let expected = self
                     .expected_velocity_ne_m_s
                     .unwrap_or(input.uav_velocity_ne_m_s);
-                let expected = expected + lag * (command - expected);
+                let expected = low_pass(expected, command, dt_s, c.autopilot_velocity_tau_s);
                 self.expected_velocity_ne_m_s = Some(expected);
                 let shortfall = expected - input.uav_velocity_ne_m_s;
-                let alpha = dt_s / (c.wind_compensation_tau_s + dt_s);
                 self.velocity_shortfall_ne_m_s = clamp_norm(
-                    self.velocity_shortfall_ne_m_s
-                        + alpha * (shortfall - self.velocity_shortfall_ne_m_s),
+                    low_pass(
+                        self.velocity_shortfall_ne_m_s,
+                        shortfall,
+                        dt_s,
+                        c.wind_compensation_tau_s,
+                    ),
                     c.max_wind_compensation_m_s,
                 );
             }
@@ -600,12 +606,11 @@ impl Machine {
             .last_time_s
             .map_or(0.0, |previous_s| time_s - previous_s);
         let raw_offset = input.pad_in_view_offset_per_height;
-        let view_offset = match self.pad_in_view_offset_per_height {
-            Some(filtered) => {
-                filtered + (dt_s / (c.keep_in_view_tau_s + dt_s)) * (raw_offset - filtered)
-            }
-            None => raw_offset,
-        };
+        let view_offset = self
+            .pad_in_view_offset_per_height
+            .map_or(raw_offset, |filtered| {
+                low_pass(filtered, raw_offset, dt_s, c.keep_in_view_tau_s)
+            });
         self.pad_in_view_offset_per_height = Some(view_offset);
         let wind = input.near_ground_wind.filter(|wind| {
             wind.altitude_m.is_finite()
@@ -613,12 +618,9 @@ impl Machine {
         });
         self.aerodynamic_accel_ne_m_s2 = wind.map(|wind| {
             let raw = wind.aerodynamic_accel_ne_m_s2;
-            match self.aerodynamic_accel_ne_m_s2 {
-                Some(filtered) => {
-                    filtered + (dt_s / (AERODYNAMIC_ACCEL_TAU_S + dt_s)) * (raw - filtered)
-                }
-                None => raw,
-            }
+            self.aerodynamic_accel_ne_m_s2.map_or(raw, |filtered| {
+                low_pass(filtered, raw, dt_s, AERODYNAMIC_ACCEL_TAU_S)
+            })
         });
         // Where the vehicle holds itself relative to the pad (UAV − pad): over it, or upwind
         // by what keeps the pad in view.
@@ -876,6 +878,12 @@ impl Machine {
     }
 }
 
+/// One step of a first-order low-pass (backward Euler): `filtered` moves towards `raw` by
+/// dt / (τ + dt).
+fn low_pass(filtered: Vector2<f64>, raw: Vector2<f64>, dt_s: f64, tau_s: f64) -> Vector2<f64> {
+    filtered + (dt_s / (tau_s + dt_s)) * (raw - filtered)
+}
+
 fn clamp_norm(v: Vector2<f64>, max_norm: f64) -> Vector2<f64> {
     let norm = v.norm();
     if norm > max_norm {
@@ -962,7 +970,6 @@ mod tests {
                     uav_velocity_ne_m_s: velocity,
                     platform_velocity_ne_m_s: platform,
                     pad_in_view_offset_per_height: per_height,
-                    near_ground_wind: None,
                     ..input(
                         t_s,
                         fix_at((uav - pad).x, (uav - pad).y, height_m),
@@ -1037,7 +1044,6 @@ mod tests {
                     uav_velocity_ne_m_s: velocity,
                     platform_velocity_ne_m_s: Vector2::zeros(),
                     pad_in_view_offset_per_height: per_height,
-                    near_ground_wind: None,
                     ..input(step as f64 * DT_S, None, 7.5)
                 })
                 .unwrap();
@@ -1219,7 +1225,6 @@ mod tests {
                 platform_velocity_ne_m_s: platform,
                 setpoints_followed: followed,
                 pad_in_view_offset_per_height: Vector2::zeros(),
-                near_ground_wind: None,
                 ..input(t_s, fix_at(0.0, 0.0, 7.5), 7.5)
             })
             .unwrap()
@@ -1526,7 +1531,6 @@ mod tests {
         let mut c = LandingController::new(LandingConfig::default()).unwrap();
         let bad = LandingInput {
             pad_in_view_offset_per_height: Vector2::new(f64::NAN, 0.0),
-            near_ground_wind: None,
             ..input(0.1, None, 7.5)
         };
         assert_eq!(
