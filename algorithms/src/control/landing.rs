@@ -1135,6 +1135,12 @@ mod tests {
         let shift = descending.velocity_setpoint_ned_m_s - plain.velocity_setpoint_ned_m_s;
         assert!(shift.x.abs() < 1e-12 && shift.z == 0.0, "{shift:?}");
         assert!((shift.y - expected_east_m_s).abs() < 1e-9, "{shift:?}");
+        // Telemetry that gives no finite wind counts as none: no shift, no error.
+        let garbled = NearGroundWind {
+            altitude_m: f64::NAN,
+            ..wind
+        };
+        assert_eq!(command(true, Some(garbled)), plain);
         let following = command(false, Some(wind));
         assert_eq!(following.mode, LandingMode::Follow);
         assert_eq!(following, command(false, None));
