@@ -459,6 +459,9 @@ pub struct RunRecord {
     pub landed_on_pad: bool,
     pub touched_down: bool,
     pub touchdown_error_m: Option<f64>,
+    /// The vehicle's tilt at touchdown (absent from shards written before it was recorded).
+    #[serde(default)]
+    pub touchdown_tilt_deg: Option<f64>,
     pub time_to_land_s: Option<f64>,
     pub mission_time_s: f64,
     pub flight_energy_wh: f64,
@@ -473,6 +476,7 @@ impl From<&SimOutcome> for RunRecord {
             landed_on_pad: o.landed_on_pad,
             touched_down: o.touched_down,
             touchdown_error_m: o.touchdown_error_m,
+            touchdown_tilt_deg: o.touchdown_tilt_deg,
             time_to_land_s: o.time_to_land_s,
             mission_time_s: o.mission_time_s,
             flight_energy_wh: o.flight_energy_wh,
@@ -490,6 +494,7 @@ impl RunRecord {
             landed_on_pad: self.landed_on_pad,
             touched_down: self.touched_down,
             touchdown_error_m: self.touchdown_error_m,
+            touchdown_tilt_deg: self.touchdown_tilt_deg,
             time_to_land_s: self.time_to_land_s,
             mission_time_s: self.mission_time_s,
             flight_energy_wh: self.flight_energy_wh,

@@ -103,7 +103,12 @@ fn bad_serve_options_are_named() {
     }
 }
 
-/// The world's touchdown, asserted on the pad within `limit_m`.
+/// Steeper than this at contact, a multirotor's legs and props are at risk: the last
+/// centimetres are flown nearly level.
+#[cfg(feature = "gstreamer")]
+const MAX_TOUCHDOWN_TILT_DEG: f64 = 20.0;
+
+/// The world's touchdown, asserted on the pad within `limit_m` and nearly level.
 #[cfg(feature = "gstreamer")]
 fn assert_landed_within(world: &Value, limit_m: f64, context: &str) -> f64 {
     assert_eq!(world["landed_on_pad"], true, "{world:#}\n{context}");
@@ -111,6 +116,12 @@ fn assert_landed_within(world: &Value, limit_m: f64, context: &str) -> f64 {
     assert!(
         error_m <= limit_m,
         "touchdown {error_m} m from the pad's centre"
+    );
+    let tilt_deg = world["touchdown"]["tilt_deg"].as_f64().unwrap();
+    eprintln!("touchdown tilt {tilt_deg:.1} deg");
+    assert!(
+        tilt_deg <= MAX_TOUCHDOWN_TILT_DEG,
+        "touched down leaning {tilt_deg:.1} deg\n{context}"
     );
     error_m
 }

@@ -30,6 +30,8 @@ pub struct SimOutcome {
     pub touched_down: bool,
     /// Horizontal distance of the vehicle's centre from the pad's centre at touchdown.
     pub touchdown_error_m: Option<f64>,
+    /// The vehicle's tilt from the vertical at touchdown, degrees.
+    pub touchdown_tilt_deg: Option<f64>,
     /// From the start of the landing phase to touchdown.
     pub time_to_land_s: Option<f64>,
     /// From arming to the end of the simulation.

@@ -260,6 +260,8 @@ pub struct Touchdown {
     pub vertical_speed_m_s: f64,
     /// Horizontal speed relative to the surface touched (the pad's velocity, or the ground).
     pub relative_horizontal_speed_m_s: f64,
+    /// The body's tilt from the vertical at contact: a lean at touchdown tips a vehicle over.
+    pub tilt_deg: f64,
 }
 
 /// The surface a resting vehicle is attached to.
@@ -452,9 +454,7 @@ impl Multirotor {
     }
     /// Tilt of the body's z axis from the vertical.
     pub fn tilt_rad(&self) -> f64 {
-        (self.attitude.roll_rad.cos() * self.attitude.pitch_rad.cos())
-            .clamp(-1.0, 1.0)
-            .acos()
+        self.attitude.tilt_rad()
     }
     /// Collective thrust being produced.
     pub fn thrust_n(&self) -> f64 {
@@ -944,6 +944,7 @@ impl Multirotor {
                 relative_horizontal_speed_m_s: (self.velocity_ned_m_s - surface_velocity)
                     .xy()
                     .norm(),
+                tilt_deg: self.tilt_rad().to_degrees(),
             });
             if hits_pad {
                 self.contact = Some(Contact::Pad {

@@ -621,6 +621,7 @@ pub fn simulate(
         landed_on_pad: touchdown.is_some_and(|t| t.on_pad),
         touched_down: touchdown.is_some(),
         touchdown_error_m: touchdown.map(|t| t.horizontal_error_m),
+        touchdown_tilt_deg: touchdown.map(|t| t.tilt_deg),
         time_to_land_s: match (touchdown, landing_started_s) {
             (Some(t), Some(start)) => Some(t.time_s - start),
             _ => None,

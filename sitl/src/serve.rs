@@ -147,6 +147,8 @@ pub struct ServedTouchdown {
     /// Vehicle centre minus pad centre, horizontally.
     pub horizontal_error_m: f64,
     pub vertical_speed_m_s: f64,
+    /// The body's tilt from the vertical at contact.
+    pub tilt_deg: f64,
 }
 
 /// How the served flight ended.
@@ -403,6 +405,7 @@ pub fn serve(
                     on_pad: t.on_pad,
                     horizontal_error_m: t.horizontal_error_m,
                     vertical_speed_m_s: t.vertical_speed_m_s,
+                    tilt_deg: t.tilt_deg,
                 })
             }
             Flyer::Px4 { touchdown, .. } => *touchdown,
@@ -456,6 +459,7 @@ fn judge(time_s: f64, pose: &VehiclePose, pad: &PadState) -> ServedTouchdown {
         on_pad: pad.contains_ne(pose.position_ned_m.xy()),
         horizontal_error_m: offset.norm(),
         vertical_speed_m_s: pose.velocity_ned_m_s.z,
+        tilt_deg: pose.attitude.tilt_rad().to_degrees(),
     }
 }
 

@@ -567,6 +567,7 @@ fn csv_has_the_columns_and_quotes_what_needs_it() {
             landed_on_pad: false,
             touched_down: false,
             touchdown_error_m: None,
+            touchdown_tilt_deg: None,
             time_to_land_s: None,
             mission_time_s: 300.0,
             flight_energy_wh: 9.0,
@@ -578,6 +579,7 @@ fn csv_has_the_columns_and_quotes_what_needs_it() {
             landed_on_pad: false,
             touched_down: true,
             touchdown_error_m: Some(1.5),
+            touchdown_tilt_deg: Some(12.0),
             time_to_land_s: Some(20.0),
             mission_time_s: 90.0,
             flight_energy_wh: 2.0,
@@ -595,4 +597,15 @@ fn csv_has_the_columns_and_quotes_what_needs_it() {
         lines[1],
         "realistic,2,8,gusts,straight,1.5,2,0,,,,5.6875,0.1875,1.5"
     );
+}
+
+/// A shard written before the touchdown tilt was recorded still merges: its runs have none.
+#[test]
+fn a_run_record_without_the_touchdown_tilt_reads_as_none() {
+    let text = r#"{"seed": 4, "landed_on_pad": true, "touched_down": true,
+        "touchdown_error_m": 0.05, "time_to_land_s": 20.0, "mission_time_s": 90.0,
+        "flight_energy_wh": 2.0, "companion_energy_wh": 0.1, "landing_aborts": 0}"#;
+    let record: RunRecord = serde_json::from_str(text).unwrap();
+    assert_eq!(record.touchdown_tilt_deg, None);
+    assert_eq!(record.touchdown_error_m, Some(0.05));
 }

@@ -140,6 +140,17 @@ pub struct LandingConfig {
     pub wind_shear_roughness_m: f64,
     /// How far ahead the descent's wind is predicted, about the velocity loop's lag.
     pub wind_shear_lead_s: f64,
+    /// After the commit, the command strays from the platform's velocity (with its
+    /// acceleration fed forward and the wind's shortfall made up) by at most this: descending fast, the autopilot spends its thrust on
+    /// the descent and follows a large correction late, with a steep lean (the real PX4 pitched
+    /// 45° at 0.4 m under the stiff close-in PID asking 3 m/s more than the pad's speed).
+    pub max_final_correction_m_s: f64,
+    /// In the last this many metres above the pad, by at most `max_touchdown_correction_m_s`:
+    /// a correction that late cannot centre the vehicle, it only tips it. A descent that
+    /// stalls there is the touchdown (the autopilot's own land detector takes about a second,
+    /// while a vehicle on the ground pushed by setpoints leans over).
+    pub touchdown_correction_height_m: f64,
+    pub max_touchdown_correction_m_s: f64,
     pub pid: PidConfig,
     pub controller: HorizontalController,
 }
@@ -172,6 +183,9 @@ impl Default for LandingConfig {
             keep_in_view_tau_s: 1.0,
             wind_shear_roughness_m: 0.0,
             wind_shear_lead_s: 0.3,
+            max_final_correction_m_s: 1.5,
+            touchdown_correction_height_m: 0.3,
+            max_touchdown_correction_m_s: 0.3,
             pid: PidConfig::default(),
             controller: HorizontalController::Pid,
         }
@@ -200,6 +214,7 @@ impl LandingConfig {
             ("search_timeout_s", self.search_timeout_s),
             ("max_fix_std_m", self.max_fix_std_m),
             ("max_horizontal_speed_m_s", self.max_horizontal_speed_m_s),
+            ("max_final_correction_m_s", self.max_final_correction_m_s),
         ];
         for (name, value) in positive {
             if !(value.is_finite() && value > 0.0) {
@@ -221,6 +236,14 @@ impl LandingConfig {
             ("keep_in_view_tau_s", self.keep_in_view_tau_s),
             ("wind_shear_roughness_m", self.wind_shear_roughness_m),
             ("wind_shear_lead_s", self.wind_shear_lead_s),
+            (
+                "touchdown_correction_height_m",
+                self.touchdown_correction_height_m,
+            ),
+            (
+                "max_touchdown_correction_m_s",
+                self.max_touchdown_correction_m_s,
+            ),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(config_error(name, value, "must be a finite number ≥ 0"));
@@ -380,6 +403,10 @@ impl LandingOutput {
 
 /// Low-pass time constant on the aerodynamic acceleration (the link differentiates velocities).
 const AERODYNAMIC_ACCEL_TAU_S: f64 = 0.2;
+/// Low-pass time constant on the descent rate, and the fraction of the final descent speed
+/// below which a committed descent near the pad counts as stopped by it.
+const DESCENT_RATE_TAU_S: f64 = 0.05;
+const STALLED_DESCENT_FRACTION: f64 = 0.3;
 
 /// Reacquire's pull towards the predicted pad position, per second of offset…
 const REACQUIRE_GAIN_PER_S: f64 = 0.5;
@@ -494,6 +521,9 @@ struct Machine {
     search_displacement_ne_m: Vector2<f64>,
     /// The aerodynamic acceleration on the vehicle, low-passed.
     aerodynamic_accel_ne_m_s2: Option<Vector2<f64>>,
+    /// The previous step's height above the pad, and the descent rate from it, low-passed.
+    previous_height_m: Option<f64>,
+    descent_rate_m_s: f64,
 }
 
 impl Machine {
@@ -516,6 +546,8 @@ impl Machine {
             pad_in_view_offset_per_height: None,
             search_displacement_ne_m: Vector2::zeros(),
             aerodynamic_accel_ne_m_s2: None,
+            previous_height_m: None,
+            descent_rate_m_s: 0.0,
         })
     }
 
@@ -622,6 +654,12 @@ impl Machine {
                 low_pass(filtered, raw, dt_s, AERODYNAMIC_ACCEL_TAU_S)
             })
         });
+        if let Some(previous_m) = self.previous_height_m.filter(|_| dt_s > 0.0) {
+            let raw = Vector2::new((previous_m - height_m) / dt_s, 0.0);
+            let filtered = Vector2::new(self.descent_rate_m_s, 0.0);
+            self.descent_rate_m_s = low_pass(filtered, raw, dt_s, DESCENT_RATE_TAU_S).x;
+        }
+        self.previous_height_m = Some(height_m);
         // Where the vehicle holds itself relative to the pad (UAV − pad): over it, or upwind
         // by what keeps the pad in view.
         let setpoint_ne_m = -view_offset * height_m.max(0.0);
@@ -707,11 +745,13 @@ impl Machine {
                     && vertical_down_m_s > 0.0
                     && matches!(self.mode, LandingMode::Descend | LandingMode::FinalLanding) =>
             {
+                // The descent ends on the pad: the wind is never predicted below it.
+                let lead_m = (vertical_down_m_s * c.wind_shear_lead_s).min(height_m.max(0.0));
                 horizontal
                     + descent_feed_forward_ne_m_s(
                         aero,
                         wind.altitude_m,
-                        vertical_down_m_s * c.wind_shear_lead_s,
+                        lead_m,
                         c.wind_shear_roughness_m,
                         c.autopilot_velocity_tau_s,
                     )
@@ -726,6 +766,22 @@ impl Machine {
         } else {
             self.velocity_shortfall_ne_m_s = Vector2::zeros();
             self.expected_velocity_ne_m_s = None;
+            horizontal
+        };
+        // After the commit the vehicle moves with the pad (its velocity and turn, the wind's
+        // shortfall made up) plus a bounded correction, a small one in the last centimetres:
+        // so late a correction cannot centre the vehicle, it only tips it.
+        let horizontal = if self.mode == LandingMode::FinalLanding {
+            let with_the_pad = input.platform_velocity_ne_m_s
+                + self.platform_accel_ne_m_s2 * c.platform_accel_lead_s
+                + self.velocity_shortfall_ne_m_s;
+            let limit_m_s = if height_m <= c.touchdown_correction_height_m {
+                c.max_touchdown_correction_m_s
+            } else {
+                c.max_final_correction_m_s
+            };
+            with_the_pad + clamp_norm(horizontal - with_the_pad, limit_m_s)
+        } else {
             horizontal
         };
         let horizontal = clamp_norm(horizontal, c.max_horizontal_speed_m_s);
@@ -750,8 +806,14 @@ impl Machine {
         let c = self.config;
         let time_s = input.time_s;
         let height_m = input.height_above_pad_m;
+        // Committed and in the last centimetres, a descent that has all but stopped has met
+        // the pad (the rate settles within a few steps of the commit's faster descent).
+        let stalled = self.mode == LandingMode::FinalLanding
+            && height_m <= c.touchdown_correction_height_m
+            && self.descent_rate_m_s < STALLED_DESCENT_FRACTION * c.final_descent_speed_m_s;
         if self.mode != LandingMode::Landed
             && (input.touchdown_detected
+                || stalled
                 || (self.mode == LandingMode::FinalLanding && height_m <= c.touchdown_height_m))
         {
             self.mode = LandingMode::Landed;
@@ -1031,6 +1093,39 @@ mod tests {
         assert_eq!(out.mode, LandingMode::FinalLanding);
     }
 
+    /// Committed, 0.8 m north of the pad: the command strays from the platform's velocity
+    /// towards the pad by at most the final correction, and by at most the touchdown one in the
+    /// last centimetres.
+    #[test]
+    fn in_the_last_centimetres_the_correction_is_bounded() {
+        let config = LandingConfig::default();
+        let committed_then_off_centre = |height_m: f64| {
+            let (mut c, mut t_s) = descending();
+            let lh_m = c.config().final_landing_height_m;
+            assert_eq!(
+                run(&mut c, &mut t_s, 1.0, Some(0.0), lh_m).mode,
+                LandingMode::FinalLanding
+            );
+            let out = run(&mut c, &mut t_s, DT_S, Some(0.8), height_m);
+            assert_eq!(out.mode, LandingMode::FinalLanding);
+            let platform = input(0.0, None, 0.0).platform_velocity_ne_m_s;
+            out.velocity_setpoint_ned_m_s.xy() - platform
+        };
+        // The PID asks for more than either limit (1.5/s × 0.8 m alone).
+        let above = committed_then_off_centre(config.touchdown_correction_height_m + 0.2);
+        assert!(
+            (above.norm() - config.max_final_correction_m_s).abs() < 1e-12,
+            "{above:?}"
+        );
+        assert!(above.x < 0.0 && above.y.abs() < 1e-12, "{above:?}");
+        let within = committed_then_off_centre(0.5 * config.touchdown_correction_height_m);
+        assert!(
+            (within.norm() - config.max_touchdown_correction_m_s).abs() < 1e-12,
+            "{within:?}"
+        );
+        assert!(within.x < 0.0 && within.y.abs() < 1e-12, "{within:?}");
+    }
+
     /// Searching with no fix, the same lean: the vehicle moves upwind until its camera sees
     /// the spot it began over, and holds there.
     #[test]
@@ -1144,6 +1239,46 @@ mod tests {
         let following = command(false, Some(wind));
         assert_eq!(following.mode, LandingMode::Follow);
         assert_eq!(following, command(false, None));
+    }
+
+    /// Committed 0.4 m over a pad 1 m above the ground at 2 m/s, the feed-forward's 0.6 m lead
+    /// would reach below the pad: the wind is predicted at the pad's surface, where the descent
+    /// ends (worked out by hand).
+    #[test]
+    fn the_wind_shear_is_never_predicted_below_the_pad() {
+        let config = LandingConfig {
+            wind_shear_roughness_m: 0.05,
+            final_descent_speed_m_s: 2.0,
+            ..LandingConfig::default()
+        };
+        let height_m = 0.4;
+        let command = |wind: Option<NearGroundWind>| {
+            let mut c = LandingController::new(config).unwrap();
+            let mut t_s = 0.0;
+            run(&mut c, &mut t_s, 1.0, Some(0.0), 7.5);
+            assert_eq!(
+                run(&mut c, &mut t_s, 1.0, Some(0.0), 1.5).mode,
+                LandingMode::FinalLanding
+            );
+            t_s += DT_S;
+            c.step(&LandingInput {
+                near_ground_wind: wind,
+                ..input(t_s, fix_at(0.0, 0.0, height_m), height_m)
+            })
+            .unwrap()
+        };
+        let wind = NearGroundWind {
+            altitude_m: 1.0 + height_m,
+            aerodynamic_accel_ne_m_s2: Vector2::new(0.0, -4.0),
+        };
+        let shift =
+            command(Some(wind)).velocity_setpoint_ned_m_s - command(None).velocity_setpoint_ned_m_s;
+        let ratio = ((1.0f64 / 0.05).ln() / (1.4f64 / 0.05).ln()).powi(2);
+        let expected_east_m_s = -4.0 * (1.0 - ratio) * config.autopilot_velocity_tau_s;
+        assert!(
+            (shift.y - expected_east_m_s).abs() < 1e-9,
+            "{shift:?} vs {expected_east_m_s}"
+        );
     }
 
     /// Closed loop, east only: a velocity loop (proportional 1/τ, a slow integrator) holds the
@@ -1349,6 +1484,32 @@ mod tests {
         assert_eq!(out.mode, LandingMode::Landed);
         assert!(out.land_command);
         assert_eq!(out.velocity_setpoint_ned_m_s, Vector3::zeros());
+    }
+
+    /// Committed and descending at the final speed, the vehicle meets the pad 0.1 m above
+    /// where it thought the pad was (the estimate's bias): the height stops falling, and within
+    /// a few steps the landing counts as done, before the autopilot's land detector says so.
+    /// A descent still under way that low is not a touchdown.
+    #[test]
+    fn a_descent_stopped_by_the_pad_is_the_touchdown() {
+        let (mut c, mut t_s) = descending();
+        let lh_m = c.config().final_landing_height_m;
+        assert_eq!(
+            run(&mut c, &mut t_s, 1.0, Some(0.0), lh_m).mode,
+            LandingMode::FinalLanding
+        );
+        let speed_m_s = c.config().final_descent_speed_m_s;
+        let mut height_m = lh_m;
+        while height_m > 0.12 {
+            height_m -= speed_m_s * DT_S;
+            let out = run(&mut c, &mut t_s, DT_S, Some(0.0), height_m);
+            assert_eq!(out.mode, LandingMode::FinalLanding, "at {height_m} m");
+        }
+        let mut steps = 0;
+        while run(&mut c, &mut t_s, DT_S, Some(0.0), 0.1).mode != LandingMode::Landed {
+            steps += 1;
+            assert!(steps < 4, "still not landed after {steps} steps on the pad");
+        }
     }
 
     #[test]

@@ -207,6 +207,13 @@ impl Attitude {
         nalgebra::Rotation3::from_euler_angles(self.roll_rad, self.pitch_rad, self.yaw_rad)
     }
 
+    /// The body's z axis from the vertical (ZYX Euler: cos tilt = cos roll · cos pitch).
+    pub fn tilt_rad(&self) -> f64 {
+        (self.roll_rad.cos() * self.pitch_rad.cos())
+            .clamp(-1.0, 1.0)
+            .acos()
+    }
+
     /// A NED vector in the body's FRD frame.
     pub fn ned_to_body_frd(&self, ned: &Vector3<f64>) -> Vector3<f64> {
         self.body_to_ned().inverse() * ned
@@ -378,6 +385,29 @@ pub fn pad_centre_from_marker(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The tilt is the angle between the body's z axis, rotated into NED, and down; yaw does
+    /// not change it.
+    #[test]
+    fn the_tilt_is_the_body_axis_angle_from_down() {
+        for (roll_deg, pitch_deg, yaw_deg) in
+            [(0.0, 0.0, 30.0), (20.0, 0.0, 0.0), (25.0, -35.0, 120.0)]
+        {
+            let attitude = Attitude::new(
+                f64::to_radians(roll_deg),
+                f64::to_radians(pitch_deg),
+                f64::to_radians(yaw_deg),
+            );
+            let body_down = attitude.body_to_ned() * Vector3::z();
+            let expected_rad = body_down.angle(&Vector3::z());
+            assert!(
+                (attitude.tilt_rad() - expected_rad).abs() < 1e-12,
+                "{roll_deg} {pitch_deg}"
+            );
+        }
+        let pure_roll = Attitude::new(f64::to_radians(20.0), 0.0, 1.0);
+        assert!((pure_roll.tilt_rad().to_degrees() - 20.0).abs() < 1e-9);
+    }
 
     /// The angular part is what a camera tilted by the angle std sees: the fix of a pixel
     /// straight below, projected with the attitude off by that angle, lands that far away.

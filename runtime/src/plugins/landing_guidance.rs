@@ -74,6 +74,15 @@ struct Params {
     /// How far ahead the descent's wind is predicted.
     #[serde(default = "default_wind_shear_lead")]
     wind_shear_lead_s: f64,
+    /// After the commit, the command strays from the platform's velocity by at most
+    /// `max_final_correction_m_s`, and in the last `touchdown_correction_height_m` by at most
+    /// `max_touchdown_correction_m_s`: so late, a large correction only tips the vehicle.
+    #[serde(default = "default_max_final_correction")]
+    max_final_correction_m_s: f64,
+    #[serde(default = "default_touchdown_correction_height")]
+    touchdown_correction_height_m: f64,
+    #[serde(default = "default_max_touchdown_correction")]
+    max_touchdown_correction_m_s: f64,
     #[serde(default)]
     controller: ControllerKind,
     /// The MPC's horizon in seconds; its step count follows from the QoS period.
@@ -126,6 +135,15 @@ fn default_gain_switch_height() -> f64 {
 }
 fn default_wind_shear_lead() -> f64 {
     LandingConfig::default().wind_shear_lead_s
+}
+fn default_max_final_correction() -> f64 {
+    LandingConfig::default().max_final_correction_m_s
+}
+fn default_touchdown_correction_height() -> f64 {
+    LandingConfig::default().touchdown_correction_height_m
+}
+fn default_max_touchdown_correction() -> f64 {
+    LandingConfig::default().max_touchdown_correction_m_s
 }
 fn default_mpc_horizon() -> f64 {
     1.0
@@ -210,6 +228,9 @@ impl GuidanceTask {
             wind_compensation_tau_s: params.wind_compensation_tau_s,
             wind_shear_roughness_m: params.wind_shear_roughness_m,
             wind_shear_lead_s: params.wind_shear_lead_s,
+            max_final_correction_m_s: params.max_final_correction_m_s,
+            touchdown_correction_height_m: params.touchdown_correction_height_m,
+            max_touchdown_correction_m_s: params.max_touchdown_correction_m_s,
             pid: {
                 let mut pid = defaults.pid;
                 pid.gains.low.ki_per_s2 = params.integral_gain_close_per_s2;
@@ -418,7 +439,9 @@ mod tests {
         let windy = task(
             "wind_compensation_tau_s = 1.0\nintegral_gain_close_per_s2 = 0.5\nfinal_descent_speed_m_s = 1.5\n\
              proportional_gain_close_per_s = 8.0\nderivative_gain_close = 2.5\n\
-             wind_shear_roughness_m = 0.05\nwind_shear_lead_s = 0.4\ngain_switch_height_m = 1.5",
+             wind_shear_roughness_m = 0.05\nwind_shear_lead_s = 0.4\ngain_switch_height_m = 1.5\n\
+             touchdown_correction_height_m = 0.25\nmax_touchdown_correction_m_s = 0.2\n\
+             max_final_correction_m_s = 1.2",
         )
         .unwrap();
         let config = windy.controller.config();
@@ -430,6 +453,9 @@ mod tests {
         assert_eq!(config.final_descent_speed_m_s, 1.5);
         assert_eq!(config.wind_shear_roughness_m, 0.05);
         assert_eq!(config.wind_shear_lead_s, 0.4);
+        assert_eq!(config.touchdown_correction_height_m, 0.25);
+        assert_eq!(config.max_touchdown_correction_m_s, 0.2);
+        assert_eq!(config.max_final_correction_m_s, 1.2);
         // Unset, they are the seed's law (Table 2's close-in gains, no feed-forward).
         let plain = task("").unwrap();
         let plain = plain.controller.config();
@@ -449,6 +475,15 @@ mod tests {
             ("derivative_gain_close = -1.0", "kd"),
             ("wind_shear_roughness_m = -0.05", "wind_shear_roughness_m"),
             ("wind_shear_lead_s = -0.3", "wind_shear_lead_s"),
+            (
+                "touchdown_correction_height_m = -0.1",
+                "touchdown_correction_height_m",
+            ),
+            ("max_final_correction_m_s = 0.0", "max_final_correction_m_s"),
+            (
+                "max_touchdown_correction_m_s = nan",
+                "max_touchdown_correction_m_s",
+            ),
         ] {
             let Err(TaskError::Params(why)) = task(params) else {
                 panic!("{params} must be refused");
