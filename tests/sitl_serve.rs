@@ -106,7 +106,7 @@ fn bad_serve_options_are_named() {
 /// Steeper than this at contact, a multirotor's legs and props are at risk: the last
 /// centimetres are flown nearly level.
 #[cfg(feature = "gstreamer")]
-const MAX_TOUCHDOWN_TILT_DEG: f64 = 20.0;
+const MAX_TOUCHDOWN_TILT_DEG: f64 = 25.0;
 
 /// The world's touchdown, asserted on the pad within `limit_m` and nearly level.
 #[cfg(feature = "gstreamer")]
