@@ -141,9 +141,10 @@ pub struct LandingConfig {
     /// How far ahead the descent's wind is predicted, about the velocity loop's lag.
     pub wind_shear_lead_s: f64,
     /// After the commit, the command strays from the platform's velocity (with its
-    /// acceleration fed forward and the wind's shortfall made up) by at most this: descending fast, the autopilot spends its thrust on
-    /// the descent and follows a large correction late, with a steep lean (the real PX4 pitched
-    /// 45° at 0.4 m under the stiff close-in PID asking 3 m/s more than the pad's speed).
+    /// acceleration fed forward and the wind's shortfall made up) by at most this: descending
+    /// fast, the autopilot spends its thrust on the descent and follows a large correction
+    /// late, with a steep lean (the real PX4 pitched 45° at 0.4 m under the stiff close-in PID
+    /// asking 3 m/s more than the pad's speed).
     pub max_final_correction_m_s: f64,
     /// In the last this many metres above the pad, by at most `max_touchdown_correction_m_s`:
     /// a correction that late cannot centre the vehicle, it only tips it. A descent that
@@ -655,9 +656,9 @@ impl Machine {
             })
         });
         if let Some(previous_m) = self.previous_height_m.filter(|_| dt_s > 0.0) {
-            let raw = Vector2::new((previous_m - height_m) / dt_s, 0.0);
-            let filtered = Vector2::new(self.descent_rate_m_s, 0.0);
-            self.descent_rate_m_s = low_pass(filtered, raw, dt_s, DESCENT_RATE_TAU_S).x;
+            let raw_m_s = (previous_m - height_m) / dt_s;
+            self.descent_rate_m_s =
+                low_pass(self.descent_rate_m_s, raw_m_s, dt_s, DESCENT_RATE_TAU_S);
         }
         self.previous_height_m = Some(height_m);
         // Where the vehicle holds itself relative to the pad (UAV − pad): over it, or upwind
@@ -942,8 +943,14 @@ impl Machine {
 
 /// One step of a first-order low-pass (backward Euler): `filtered` moves towards `raw` by
 /// dt / (τ + dt).
-fn low_pass(filtered: Vector2<f64>, raw: Vector2<f64>, dt_s: f64, tau_s: f64) -> Vector2<f64> {
-    filtered + (dt_s / (tau_s + dt_s)) * (raw - filtered)
+fn low_pass<T>(filtered: T, raw: T, dt_s: f64, tau_s: f64) -> T
+where
+    T: Copy
+        + std::ops::Add<Output = T>
+        + std::ops::Sub<Output = T>
+        + std::ops::Mul<f64, Output = T>,
+{
+    filtered + (raw - filtered) * (dt_s / (tau_s + dt_s))
 }
 
 fn clamp_norm(v: Vector2<f64>, max_norm: f64) -> Vector2<f64> {
