@@ -773,9 +773,8 @@ impl Machine {
         // shortfall made up) plus a bounded correction, a small one in the last centimetres:
         // so late a correction cannot centre the vehicle, it only tips it.
         let horizontal = if self.mode == LandingMode::FinalLanding {
-            let with_the_pad = input.platform_velocity_ne_m_s
-                + self.platform_accel_ne_m_s2 * c.platform_accel_lead_s
-                + self.velocity_shortfall_ne_m_s;
+            let with_the_pad =
+                self.platform_feed_forward_ne_m_s(input) + self.velocity_shortfall_ne_m_s;
             let limit_m_s = if height_m <= c.touchdown_correction_height_m {
                 c.max_touchdown_correction_m_s
             } else {
@@ -900,8 +899,7 @@ impl Machine {
         setpoint_ne_m: Vector2<f64>,
         mpc: Option<&mut MpcController>,
     ) -> Result<Vector2<f64>, LandingError> {
-        let feed_forward_ne_m_s = input.platform_velocity_ne_m_s
-            + self.platform_accel_ne_m_s2 * self.config.platform_accel_lead_s;
+        let feed_forward_ne_m_s = self.platform_feed_forward_ne_m_s(input);
         let Some(fix) = fix else {
             return Ok(feed_forward_ne_m_s);
         };
@@ -932,6 +930,12 @@ impl Machine {
             platform_velocity_ne_m_s: feed_forward_ne_m_s,
         })?;
         Ok(out.velocity_ne_m_s)
+    }
+
+    /// The platform's velocity with its acceleration fed forward over the configured lead.
+    fn platform_feed_forward_ne_m_s(&self, input: &LandingInput) -> Vector2<f64> {
+        input.platform_velocity_ne_m_s
+            + self.platform_accel_ne_m_s2 * self.config.platform_accel_lead_s
     }
 
     /// Vertical speed (down positive) towards a height above the pad.

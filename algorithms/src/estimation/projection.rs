@@ -207,11 +207,15 @@ impl Attitude {
         nalgebra::Rotation3::from_euler_angles(self.roll_rad, self.pitch_rad, self.yaw_rad)
     }
 
-    /// The body's z axis from the vertical (ZYX Euler: cos tilt = cos roll · cos pitch).
+    /// The cosine of the body's z axis from the vertical (ZYX Euler: cos roll · cos pitch):
+    /// what a range along that axis is scaled by to give a height.
+    pub fn cos_tilt(&self) -> f64 {
+        self.roll_rad.cos() * self.pitch_rad.cos()
+    }
+
+    /// The body's z axis from the vertical.
     pub fn tilt_rad(&self) -> f64 {
-        (self.roll_rad.cos() * self.pitch_rad.cos())
-            .clamp(-1.0, 1.0)
-            .acos()
+        self.cos_tilt().clamp(-1.0, 1.0).acos()
     }
 
     /// A NED vector in the body's FRD frame.

@@ -232,7 +232,7 @@ pub fn rangefinder_height_m(sensor: &DISTANCE_SENSOR_DATA, attitude: &Attitude) 
     {
         return None;
     }
-    let tilt_cos = attitude.roll_rad.cos() * attitude.pitch_rad.cos();
+    let tilt_cos = attitude.cos_tilt();
     if tilt_cos <= 0.0 {
         return None;
     }

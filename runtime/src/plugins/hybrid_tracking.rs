@@ -521,11 +521,11 @@ impl HybridTrackingTask {
             })?;
         // The window looks along the optical axis, the body's down axis: its depth is the
         // height over the cosine of the tilt.
-        let cos_tilt = attitude.roll_rad.cos() * attitude.pitch_rad.cos();
+        let cos_tilt = attitude.cos_tilt();
         if cos_tilt < 0.5 {
             return Err(AltitudeFallback::Tilt {
                 frame_index,
-                tilt_deg: cos_tilt.clamp(-1.0, 1.0).acos().to_degrees(),
+                tilt_deg: attitude.tilt_rad().to_degrees(),
             });
         }
         let estimate = self
