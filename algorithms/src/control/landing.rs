@@ -152,6 +152,16 @@ pub struct LandingConfig {
     /// while a vehicle on the ground pushed by setpoints leans over).
     pub touchdown_correction_height_m: f64,
     pub max_touchdown_correction_m_s: f64,
+    /// Gust feed-forward after the commit: the change of the aerodynamic acceleration from its
+    /// baseline (low-passed over `gust_baseline_tau_s`, what the autopilot's velocity integrator
+    /// has learned) × this is taken off the velocity command, so the velocity loop pushes back
+    /// at once instead of after a drift; not in the last `touchdown_correction_height_m`,
+    /// where it only tipped the real PX4 (a wind-free world, where the "gust" is the lag
+    /// between its attitude and its velocity). 1/MPC_XY_VEL_P_ACC (0.56 s) asks the loop for
+    /// exactly the gust's acceleration; its attitude lag wants a little more. 0 (the
+    /// default): off.
+    pub gust_feed_forward_s: f64,
+    pub gust_baseline_tau_s: f64,
     pub pid: PidConfig,
     pub controller: HorizontalController,
 }
@@ -187,6 +197,8 @@ impl Default for LandingConfig {
             max_final_correction_m_s: 1.5,
             touchdown_correction_height_m: 0.3,
             max_touchdown_correction_m_s: 0.3,
+            gust_feed_forward_s: 0.0,
+            gust_baseline_tau_s: 1.0,
             pid: PidConfig::default(),
             controller: HorizontalController::Pid,
         }
@@ -216,6 +228,7 @@ impl LandingConfig {
             ("max_fix_std_m", self.max_fix_std_m),
             ("max_horizontal_speed_m_s", self.max_horizontal_speed_m_s),
             ("max_final_correction_m_s", self.max_final_correction_m_s),
+            ("gust_baseline_tau_s", self.gust_baseline_tau_s),
         ];
         for (name, value) in positive {
             if !(value.is_finite() && value > 0.0) {
@@ -245,6 +258,7 @@ impl LandingConfig {
                 "max_touchdown_correction_m_s",
                 self.max_touchdown_correction_m_s,
             ),
+            ("gust_feed_forward_s", self.gust_feed_forward_s),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(config_error(name, value, "must be a finite number ≥ 0"));
@@ -522,6 +536,8 @@ struct Machine {
     search_displacement_ne_m: Vector2<f64>,
     /// The aerodynamic acceleration on the vehicle, low-passed.
     aerodynamic_accel_ne_m_s2: Option<Vector2<f64>>,
+    /// The same over `gust_baseline_tau_s`: what the autopilot's integrator has learned.
+    aerodynamic_baseline_ne_m_s2: Option<Vector2<f64>>,
     /// The previous step's height above the pad, and the descent rate from it, low-passed.
     previous_height_m: Option<f64>,
     descent_rate_m_s: f64,
@@ -547,6 +563,7 @@ impl Machine {
             pad_in_view_offset_per_height: None,
             search_displacement_ne_m: Vector2::zeros(),
             aerodynamic_accel_ne_m_s2: None,
+            aerodynamic_baseline_ne_m_s2: None,
             previous_height_m: None,
             descent_rate_m_s: 0.0,
         })
@@ -655,6 +672,12 @@ impl Machine {
                 low_pass(filtered, raw, dt_s, AERODYNAMIC_ACCEL_TAU_S)
             })
         });
+        self.aerodynamic_baseline_ne_m_s2 = wind.map(|wind| {
+            let raw = wind.aerodynamic_accel_ne_m_s2;
+            self.aerodynamic_baseline_ne_m_s2.map_or(raw, |filtered| {
+                low_pass(filtered, raw, dt_s, c.gust_baseline_tau_s)
+            })
+        });
         if let Some(previous_m) = self.previous_height_m.filter(|_| dt_s > 0.0) {
             let raw_m_s = (previous_m - height_m) / dt_s;
             self.descent_rate_m_s =
@@ -759,6 +782,23 @@ impl Machine {
             }
             _ => horizontal,
         };
+        // After the commit a gust is answered as the vehicle feels it: its push (the aerodynamic
+        // acceleration less what the autopilot's integrator has learned) is asked of the
+        // velocity loop the other way, before a drift shows it. Earlier, the tracking itself
+        // answers (the answer there made the tail worse: Dryden p95 up to 0.41 m); in the last
+        // centimetres it only tips the vehicle, as the corrections do.
+        let gust_shift_ne_m_s = match (
+            self.aerodynamic_accel_ne_m_s2,
+            self.aerodynamic_baseline_ne_m_s2,
+        ) {
+            (Some(now), Some(baseline))
+                if self.mode == LandingMode::FinalLanding
+                    && height_m > c.touchdown_correction_height_m =>
+            {
+                -(now - baseline) * c.gust_feed_forward_s
+            }
+            _ => Vector2::zeros(),
+        };
         // The autopilot's shortfall is made up while the vehicle steers (not while it only
         // holds still in Search, nor on the ground).
         let steering = !matches!(self.mode, LandingMode::Search | LandingMode::Landed);
@@ -770,11 +810,13 @@ impl Machine {
             horizontal
         };
         // After the commit the vehicle moves with the pad (its velocity and turn, the wind's
-        // shortfall made up) plus a bounded correction, a small one in the last centimetres:
+        // shortfall made up, the gust answered) plus a bounded correction, a small one in the last centimetres:
         // so late a correction cannot centre the vehicle, it only tips it.
+        let horizontal = horizontal + gust_shift_ne_m_s;
         let horizontal = if self.mode == LandingMode::FinalLanding {
-            let with_the_pad =
-                self.platform_feed_forward_ne_m_s(input) + self.velocity_shortfall_ne_m_s;
+            let with_the_pad = self.platform_feed_forward_ne_m_s(input)
+                + self.velocity_shortfall_ne_m_s
+                + gust_shift_ne_m_s;
             let limit_m_s = if height_m <= c.touchdown_correction_height_m {
                 c.max_touchdown_correction_m_s
             } else {
@@ -785,7 +827,8 @@ impl Machine {
             horizontal
         };
         let horizontal = clamp_norm(horizontal, c.max_horizontal_speed_m_s);
-        self.last_command_ne_m_s = steering.then_some(horizontal);
+        // The gust's answer is spent on the gust: the shortfall estimate expects the rest.
+        self.last_command_ne_m_s = steering.then_some(horizontal - gust_shift_ne_m_s);
         Ok(LandingOutput {
             mode: self.mode,
             velocity_setpoint_ned_m_s: Vector3::new(horizontal.x, horizontal.y, vertical_down_m_s),
@@ -1012,6 +1055,18 @@ mod tests {
             out = Some(c.step(&input(*t_s, fix, height_m)).unwrap());
         }
         out.unwrap()
+    }
+
+    /// The reference mission's close-in PID (8/s and 2.5) and final descent (2 m/s).
+    fn close_in_config() -> LandingConfig {
+        let mut pid = PidConfig::default();
+        pid.gains.low.kp_per_s = 8.0;
+        pid.gains.low.kd = 2.5;
+        LandingConfig {
+            final_descent_speed_m_s: 2.0,
+            pid,
+            ..LandingConfig::default()
+        }
     }
 
     /// A controller brought to Descend at IH with the target centred.
@@ -1305,15 +1360,9 @@ mod tests {
             -4.0 * ((altitude_m / roughness_m).ln() / (8.5f64 / roughness_m).ln()).powi(2)
         };
         let land = |wind_shear_roughness_m: f64| {
-            // The reference mission's close-in PID and final descent.
-            let mut pid = PidConfig::default();
-            pid.gains.low.kp_per_s = 8.0;
-            pid.gains.low.kd = 2.5;
             let config = LandingConfig {
                 wind_shear_roughness_m,
-                final_descent_speed_m_s: 2.0,
-                pid,
-                ..LandingConfig::default()
+                ..close_in_config()
             };
             let gain_per_s = 1.0 / config.autopilot_velocity_tau_s;
             let mut c = LandingController::new(config).unwrap();
@@ -1359,6 +1408,144 @@ mod tests {
             with_m < 0.75 * without_m && worst_with_m < 0.75 * worst_without_m,
             "touchdown {with_m} m against {without_m} m, worst below 2 m {worst_with_m} against {worst_without_m} m"
         );
+    }
+
+    /// A gust that strikes after the commit, against a P+I velocity loop with a lagging
+    /// attitude: answered as it is felt, it pushes the vehicle off the pad by much less, and
+    /// before the commit (the same gust while following) the answer is not given.
+    #[test]
+    fn a_gust_after_the_commit_is_answered_as_it_is_felt() {
+        let steady_m_s2 = -3.0;
+        let gust_m_s2 = 2.5;
+        let land = |gust_feed_forward_s: f64, gust_below_m: f64| {
+            let config = LandingConfig {
+                gust_feed_forward_s,
+                ..close_in_config()
+            };
+            let mut c = LandingController::new(config).unwrap();
+            let (mut east_m, mut velocity_m_s, mut height_m) = (0.0, 0.0, 7.5);
+            // PX4's MPC_XY_VEL_P_ACC and _I_ACC, the attitude's 0.1 s lag; settled at IH.
+            let (p_per_s, i_per_s2, attitude_tau_s) = (1.8, 0.4, 0.1);
+            let mut integral_m_s2 = -steady_m_s2;
+            let mut thrust_m_s2 = integral_m_s2;
+            let mut shifts_before_commit_m_s: f64 = 0.0;
+            for step in 1..4000 {
+                let t_s = step as f64 * 0.02;
+                let aero = if height_m < gust_below_m {
+                    steady_m_s2 + gust_m_s2
+                } else {
+                    steady_m_s2
+                };
+                let out = c
+                    .step(&LandingInput {
+                        platform_velocity_ne_m_s: Vector2::zeros(),
+                        uav_velocity_ne_m_s: Vector2::new(0.0, velocity_m_s),
+                        near_ground_wind: Some(NearGroundWind {
+                            altitude_m: height_m,
+                            aerodynamic_accel_ne_m_s2: Vector2::new(0.0, aero),
+                        }),
+                        ..input(t_s, fix_at(0.0, east_m, height_m), height_m)
+                    })
+                    .unwrap();
+                if out.mode == LandingMode::Landed {
+                    return (east_m.abs(), shifts_before_commit_m_s);
+                }
+                if out.mode != LandingMode::FinalLanding {
+                    // With the vehicle over the pad and still, anything asked is an answer.
+                    shifts_before_commit_m_s = shifts_before_commit_m_s
+                        .max((out.velocity_setpoint_ned_m_s.y - velocity_m_s).abs());
+                }
+                let error_m_s = out.velocity_setpoint_ned_m_s.y - velocity_m_s;
+                integral_m_s2 += i_per_s2 * error_m_s * 0.02;
+                let wanted_m_s2 = p_per_s * error_m_s + integral_m_s2;
+                thrust_m_s2 += (wanted_m_s2 - thrust_m_s2) * 0.02 / attitude_tau_s;
+                velocity_m_s += (thrust_m_s2 + aero) * 0.02;
+                east_m += velocity_m_s * 0.02;
+                height_m = (height_m - out.velocity_setpoint_ned_m_s.z * 0.02).max(0.0);
+            }
+            panic!("never landed");
+        };
+        // The gust strikes just below the commit height (1.5 m).
+        let (without_m, _) = land(0.0, 1.2);
+        let (with_m, _) = land(0.75, 1.2);
+        assert!(
+            without_m > 0.03,
+            "the gust should push it off: {without_m} m"
+        );
+        assert!(
+            with_m < 0.6 * without_m,
+            "touchdown {with_m} m with the answer against {without_m} m without"
+        );
+        // Struck while following high above the pad, the vehicle is steered by the tracking
+        // alone: the feed-forward asks for nothing beyond what the same flight without it asks.
+        let (_, asked_with_m_s) = land(0.75, 5.0);
+        let (_, asked_without_m_s) = land(0.0, 5.0);
+        assert!(
+            (asked_with_m_s - asked_without_m_s).abs() < 1e-12,
+            "before the commit: {asked_with_m_s} against {asked_without_m_s} m/s"
+        );
+    }
+
+    /// The same flight, with and without the gust's answer: after the commit a gust of
+    /// 2 m/s² east is answered by about its push × `gust_feed_forward_s` west (less what the
+    /// baseline has learned meanwhile); in the last centimetres not at all, so the commands
+    /// there are the same to the bit.
+    #[test]
+    fn the_gust_is_answered_after_the_commit_and_not_in_the_last_centimetres() {
+        let controller = |gust_feed_forward_s: f64| {
+            LandingController::new(LandingConfig {
+                gust_feed_forward_s,
+                ..LandingConfig::default()
+            })
+            .unwrap()
+        };
+        let (mut plain, mut answering) = (controller(0.0), controller(0.75));
+        let mut t_s = 0.0;
+        let mut both = |duration_s: f64, height_m: f64, aero_east_m_s2: f64| {
+            let mut outputs = (None, None);
+            for _ in 0..(duration_s / DT_S).round() as usize {
+                t_s += DT_S;
+                let step = LandingInput {
+                    near_ground_wind: Some(NearGroundWind {
+                        altitude_m: height_m + 1.0,
+                        aerodynamic_accel_ne_m_s2: Vector2::new(0.0, aero_east_m_s2),
+                    }),
+                    ..input(t_s, fix_at(0.0, 0.0, height_m), height_m)
+                };
+                outputs = (
+                    Some(plain.step(&step).unwrap()),
+                    Some(answering.step(&step).unwrap()),
+                );
+            }
+            let (plain, answering) = (outputs.0.unwrap(), outputs.1.unwrap());
+            assert_eq!(plain.mode, answering.mode);
+            (plain, answering)
+        };
+        // Following and descending in a steady wind: no gust, nothing to answer.
+        let (plain_out, answering_out) = both(1.0, 7.5, -3.0);
+        assert_eq!(plain_out.mode, LandingMode::Descend);
+        assert_eq!(plain_out, answering_out);
+        let (plain_out, answering_out) = both(1.0, 1.4, -3.0);
+        assert_eq!(plain_out.mode, LandingMode::FinalLanding);
+        assert!(
+            (plain_out.velocity_setpoint_ned_m_s - answering_out.velocity_setpoint_ned_m_s).norm()
+                < 1e-9
+        );
+        // The gust, 0.3 s long: felt through the 0.2 s filter, less the 1 s baseline's share.
+        let (plain_out, answering_out) = both(0.3, 0.8, -1.0);
+        let answer_east_m_s =
+            answering_out.velocity_setpoint_ned_m_s.y - plain_out.velocity_setpoint_ned_m_s.y;
+        let felt = 1.0 - (0.2f64 / (0.2 + DT_S)).powi(6);
+        let learned = 1.0 - (1.0f64 / (1.0 + DT_S)).powi(6);
+        let expected_m_s = -2.0 * (felt - learned) * 0.75;
+        assert!(
+            (answer_east_m_s - expected_m_s).abs() < 1e-9 && expected_m_s < -0.5,
+            "answered {answer_east_m_s} m/s, expected {expected_m_s}"
+        );
+        // In the last centimetres the gust goes unanswered.
+        let (plain_out, answering_out) = both(DT_S, 0.2, -1.0);
+        assert_eq!(plain_out.mode, LandingMode::FinalLanding);
+        assert_eq!(plain_out, answering_out);
     }
 
     /// A vehicle held still by its autopilot (a failsafe, a pilot) while the guidance asks for

@@ -83,6 +83,13 @@ struct Params {
     touchdown_correction_height_m: f64,
     #[serde(default = "default_max_touchdown_correction")]
     max_touchdown_correction_m_s: f64,
+    /// After the commit and above `touchdown_correction_height_m`, a gust's push (the
+    /// aerodynamic acceleration less its baseline over `gust_baseline_tau_s`) × this is taken
+    /// off the command, so the autopilot pushes back before a drift shows it (0: off).
+    #[serde(default)]
+    gust_feed_forward_s: f64,
+    #[serde(default = "default_gust_baseline_tau")]
+    gust_baseline_tau_s: f64,
     #[serde(default)]
     controller: ControllerKind,
     /// The MPC's horizon in seconds; its step count follows from the QoS period.
@@ -144,6 +151,9 @@ fn default_touchdown_correction_height() -> f64 {
 }
 fn default_max_touchdown_correction() -> f64 {
     LandingConfig::default().max_touchdown_correction_m_s
+}
+fn default_gust_baseline_tau() -> f64 {
+    LandingConfig::default().gust_baseline_tau_s
 }
 fn default_mpc_horizon() -> f64 {
     1.0
@@ -231,6 +241,8 @@ impl GuidanceTask {
             max_final_correction_m_s: params.max_final_correction_m_s,
             touchdown_correction_height_m: params.touchdown_correction_height_m,
             max_touchdown_correction_m_s: params.max_touchdown_correction_m_s,
+            gust_feed_forward_s: params.gust_feed_forward_s,
+            gust_baseline_tau_s: params.gust_baseline_tau_s,
             pid: {
                 let mut pid = defaults.pid;
                 pid.gains.low.ki_per_s2 = params.integral_gain_close_per_s2;
@@ -441,7 +453,7 @@ mod tests {
              proportional_gain_close_per_s = 8.0\nderivative_gain_close = 2.5\n\
              wind_shear_roughness_m = 0.05\nwind_shear_lead_s = 0.4\ngain_switch_height_m = 1.5\n\
              touchdown_correction_height_m = 0.25\nmax_touchdown_correction_m_s = 0.2\n\
-             max_final_correction_m_s = 1.2",
+             max_final_correction_m_s = 1.2\ngust_feed_forward_s = 0.6\ngust_baseline_tau_s = 2.0",
         )
         .unwrap();
         let config = windy.controller.config();
@@ -456,6 +468,8 @@ mod tests {
         assert_eq!(config.touchdown_correction_height_m, 0.25);
         assert_eq!(config.max_touchdown_correction_m_s, 0.2);
         assert_eq!(config.max_final_correction_m_s, 1.2);
+        assert_eq!(config.gust_feed_forward_s, 0.6);
+        assert_eq!(config.gust_baseline_tau_s, 2.0);
         // Unset, they are the seed's law (Table 2's close-in gains, no feed-forward).
         let plain = task("").unwrap();
         let plain = plain.controller.config();
@@ -466,6 +480,7 @@ mod tests {
             (1.5, 0.5)
         );
         assert_eq!(plain.wind_shear_roughness_m, 0.0);
+        assert_eq!(plain.gust_feed_forward_s, 0.0);
         assert_eq!(plain.pid.gains.switch_height_m, 4.0);
         for (params, name) in [
             ("wind_compensation_tau_s = -1.0", "wind_compensation_tau_s"),
@@ -484,6 +499,8 @@ mod tests {
                 "max_touchdown_correction_m_s = nan",
                 "max_touchdown_correction_m_s",
             ),
+            ("gust_feed_forward_s = -0.5", "gust_feed_forward_s"),
+            ("gust_baseline_tau_s = 0.0", "gust_baseline_tau_s"),
         ] {
             let Err(TaskError::Params(why)) = task(params) else {
                 panic!("{params} must be refused");
