@@ -656,27 +656,33 @@ impl Machine {
             .last_time_s
             .map_or(0.0, |previous_s| time_s - previous_s);
         let raw_offset = input.pad_in_view_offset_per_height;
-        let view_offset = self
-            .pad_in_view_offset_per_height
-            .map_or(raw_offset, |filtered| {
-                low_pass(filtered, raw_offset, dt_s, c.keep_in_view_tau_s)
-            });
+        let view_offset = low_pass_from(
+            self.pad_in_view_offset_per_height,
+            raw_offset,
+            dt_s,
+            c.keep_in_view_tau_s,
+        );
         self.pad_in_view_offset_per_height = Some(view_offset);
         let wind = input.near_ground_wind.filter(|wind| {
             wind.altitude_m.is_finite()
                 && wind.aerodynamic_accel_ne_m_s2.iter().all(|v| v.is_finite())
         });
-        self.aerodynamic_accel_ne_m_s2 = wind.map(|wind| {
-            let raw = wind.aerodynamic_accel_ne_m_s2;
-            self.aerodynamic_accel_ne_m_s2.map_or(raw, |filtered| {
-                low_pass(filtered, raw, dt_s, AERODYNAMIC_ACCEL_TAU_S)
-            })
+        let raw_aero = wind.map(|wind| wind.aerodynamic_accel_ne_m_s2);
+        self.aerodynamic_accel_ne_m_s2 = raw_aero.map(|raw| {
+            low_pass_from(
+                self.aerodynamic_accel_ne_m_s2,
+                raw,
+                dt_s,
+                AERODYNAMIC_ACCEL_TAU_S,
+            )
         });
-        self.aerodynamic_baseline_ne_m_s2 = wind.map(|wind| {
-            let raw = wind.aerodynamic_accel_ne_m_s2;
-            self.aerodynamic_baseline_ne_m_s2.map_or(raw, |filtered| {
-                low_pass(filtered, raw, dt_s, c.gust_baseline_tau_s)
-            })
+        self.aerodynamic_baseline_ne_m_s2 = raw_aero.map(|raw| {
+            low_pass_from(
+                self.aerodynamic_baseline_ne_m_s2,
+                raw,
+                dt_s,
+                c.gust_baseline_tau_s,
+            )
         });
         if let Some(previous_m) = self.previous_height_m.filter(|_| dt_s > 0.0) {
             let raw_m_s = (previous_m - height_m) / dt_s;
@@ -810,19 +816,18 @@ impl Machine {
             horizontal
         };
         // After the commit the vehicle moves with the pad (its velocity and turn, the wind's
-        // shortfall made up, the gust answered) plus a bounded correction, a small one in the last centimetres:
-        // so late a correction cannot centre the vehicle, it only tips it.
-        let horizontal = horizontal + gust_shift_ne_m_s;
+        // shortfall made up) plus a bounded correction, a small one in the last centimetres:
+        // so late a correction cannot centre the vehicle, it only tips it. The gust's answer
+        // comes on top, unbounded: it is no correction, it meets a force.
         let horizontal = if self.mode == LandingMode::FinalLanding {
-            let with_the_pad = self.platform_feed_forward_ne_m_s(input)
-                + self.velocity_shortfall_ne_m_s
-                + gust_shift_ne_m_s;
+            let with_the_pad =
+                self.platform_feed_forward_ne_m_s(input) + self.velocity_shortfall_ne_m_s;
             let limit_m_s = if height_m <= c.touchdown_correction_height_m {
                 c.max_touchdown_correction_m_s
             } else {
                 c.max_final_correction_m_s
             };
-            with_the_pad + clamp_norm(horizontal - with_the_pad, limit_m_s)
+            with_the_pad + clamp_norm(horizontal - with_the_pad, limit_m_s) + gust_shift_ne_m_s
         } else {
             horizontal
         };
@@ -986,6 +991,17 @@ impl Machine {
         let limit = self.config.max_height_hold_speed_m_s;
         (self.config.height_gain_per_s * (height_m - target_m)).clamp(-limit, limit)
     }
+}
+
+/// [`low_pass`] from the filter's state, or from `raw` itself when it has none yet.
+fn low_pass_from<T>(filtered: Option<T>, raw: T, dt_s: f64, tau_s: f64) -> T
+where
+    T: Copy
+        + std::ops::Add<Output = T>
+        + std::ops::Sub<Output = T>
+        + std::ops::Mul<f64, Output = T>,
+{
+    filtered.map_or(raw, |filtered| low_pass(filtered, raw, dt_s, tau_s))
 }
 
 /// One step of a first-order low-pass (backward Euler): `filtered` moves towards `raw` by
