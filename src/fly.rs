@@ -9,6 +9,7 @@ use runtime::energy::load_mission_model;
 use runtime::link::{LinkConfig, MavlinkLink};
 use runtime::mission::{MissionLog, MissionPlan, MissionRunner, RunnerOptions};
 use runtime::plugins::builtin_registry;
+use runtime::record::{ConfigFile, Recorder, RecordingHeader, RecordingSource};
 use runtime::scheduler::{RealTimeOptions, SchedulerBuilder, TaskStats};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -34,6 +35,7 @@ pub struct FlyArgs {
     pub duration_s: Option<f64>,
     pub json: bool,
     pub meeting_point_ne_m: [f64; 2],
+    pub recording: crate::replay::RecordArgs,
 }
 
 /// The report `--json` prints at the end.
@@ -153,17 +155,36 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
     let scheduler = SchedulerBuilder::new(&registry)
         .tasks(&loaded.config.tasks)
         .build_real_time(RealTimeOptions::default())?;
+    let runner_options = RunnerOptions {
+        landing_target: link_settings.landing_target,
+        fixed_levels: Vec::new(),
+    };
+    let has_camera = camera.is_some();
     let mut runner = MissionRunner::new(
         model,
         scheduler,
         link,
-        plan,
+        plan.clone(),
         camera,
-        RunnerOptions {
-            landing_target: link_settings.landing_target,
-            fixed_levels: Vec::new(),
-        },
+        runner_options.clone(),
     )?;
+    if let Some(options) = args.recording.options() {
+        let files = ConfigFile::collect(&args.file, &loaded.config)?;
+        let header = RecordingHeader::new(
+            RecordingSource::Flight,
+            SchedulerBuilder::DEFAULT_SEED,
+            plan,
+            &loaded.config,
+            &runner_options,
+            has_camera,
+            files[0].path.clone(),
+        );
+        let recorder = Recorder::start(&options, &header, &files)?;
+        if let Some(port) = recorder.live_port() {
+            tracing::info!("Foxglove: open ws://{}:{port}", options.live.map_or("127.0.0.1".into(), |a| a.ip().to_string()));
+        }
+        runner.record(recorder)?;
+    }
     let interrupted = Arc::new(AtomicBool::new(false));
     {
         let interrupted = interrupted.clone();
@@ -220,6 +241,16 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
         std::thread::sleep(next.saturating_duration_since(Instant::now()));
     }
     runner.stop();
+    if let Some(summary) = runner.finish_recording().transpose()? {
+        if let Some(path) = &summary.file {
+            eprintln!(
+                "recorded {} messages ({:.1} MB) to {}",
+                summary.total_messages(),
+                summary.bytes as f64 / 1e6,
+                path.display()
+            );
+        }
+    }
     let wall_s = started.elapsed().as_secs_f64();
     let stats = runner.scheduler().stats();
     let link_stats = runner.link().stats();

@@ -10,6 +10,7 @@ mod plan;
 mod plot;
 mod profile;
 mod ptu_stereo;
+mod replay;
 mod run;
 mod serve;
 mod sim;
@@ -38,6 +39,9 @@ enum Command {
     /// Fly the whole mission in the built-in simulator: vehicle, tractor, wind, camera, battery
     /// and a MAVLink autopilot over UDP, with the real runtime and tasks, in virtual time.
     Sim(sim::SimArgs),
+    /// Re-run a recorded mission's tasks on its recorded frames, telemetry and clock, and say
+    /// where their outputs differ from the recording (none: bit for bit).
+    Replay(replay::ReplayArgs),
     /// Validate a mission's QoS config and print a summary of it.
     Check {
         /// The mission config.
@@ -119,6 +123,8 @@ enum Command {
         /// The mission phase of a dry run (default: the one with the most tasks).
         #[arg(long, value_name = "NAME", requires = "dry_run")]
         phase: Option<String>,
+        #[command(flatten)]
+        recording: replay::RecordArgs,
     },
     /// Measure this board's power at each combination of the tasks' QoS levels with its power
     /// meter (Jetson INA3221, RAPL, hwmon, NVML or an external meter's log) and write the
@@ -165,6 +171,7 @@ fn main() -> ExitCode {
     match cli.command {
         Command::Check { file, json } => check::run(&file, json),
         Command::Sim(args) => sim::run(&args),
+        Command::Replay(args) => replay::run(&args),
         Command::Profile(args) => profile::run(&args),
         Command::PtuStereo(args) => ptu_stereo::run(&args),
         Command::Detect {
@@ -203,6 +210,7 @@ fn main() -> ExitCode {
             dry_run: false,
             duration_s,
             phase: _,
+            recording,
         } => fly::run(&fly::FlyArgs {
             file,
             mavlink,
@@ -211,6 +219,7 @@ fn main() -> ExitCode {
             duration_s,
             json,
             meeting_point_ne_m,
+            recording,
         }),
         Command::Run {
             file,

@@ -215,3 +215,99 @@ mod tests {
         );
     }
 }
+
+/// The simulated mission's QoS levels and battery over time: the battery's state of charge
+/// above, every task's level (0 = its lowest) below, as the governor set them.
+pub fn qos_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, String> {
+    if outcome.track.is_empty() || outcome.qos_track.is_empty() {
+        return Err("the run recorded no track".into());
+    }
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (1000, 640)).into_drawing_area();
+        draw_qos(&root, outcome).map_err(|error| format!("cannot draw the plot: {error}"))?;
+        root.present()
+            .map_err(|error| format!("cannot draw the plot: {error}"))?;
+    }
+    Ok(svg)
+}
+
+fn draw_qos<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    outcome: &sim::outcome::SimOutcome,
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    root.fill(&WHITE)?;
+    let (top, bottom) = root.split_vertically(260);
+    let end_s = outcome.mission_time_s.max(1.0);
+    let mut battery = ChartBuilder::on(&top)
+        .caption("battery", ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(30)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0.0..end_s, 0.0..100.0)?;
+    battery
+        .configure_mesh()
+        .y_desc("state of charge (%)")
+        .draw()?;
+    battery.draw_series(LineSeries::new(
+        outcome
+            .track
+            .iter()
+            .map(|s| (s.time_s, 100.0 * s.battery_soc)),
+        RED.stroke_width(2),
+    ))?;
+    let tasks: Vec<&str> = outcome.qos_track[0]
+        .levels
+        .iter()
+        .map(|(task, _, _)| task.as_str())
+        .collect();
+    let top_level = outcome
+        .qos_track
+        .iter()
+        .flat_map(|s| s.levels.iter().map(|l| l.1))
+        .max()
+        .unwrap_or(0);
+    let mut levels = ChartBuilder::on(&bottom)
+        .caption("QoS level of every task", ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0.0..end_s, -0.3..(top_level as f64 + 0.5))?;
+    levels
+        .configure_mesh()
+        .x_desc("mission time (s)")
+        .y_desc("level (0 = lowest)")
+        .draw()?;
+    for (index, task) in tasks.iter().enumerate() {
+        // A step line through every change, each task a little apart so equal levels show.
+        let offset = 0.06 * index as f64;
+        let mut points = Vec::new();
+        for (i, sample) in outcome.qos_track.iter().enumerate() {
+            let Some(&(_, level, _)) = sample.levels.iter().find(|l| l.0 == *task) else {
+                continue;
+            };
+            let y = level as f64 + offset;
+            if i > 0 {
+                if let Some(&(_, last_y)) = points.last() {
+                    points.push((sample.time_s, last_y));
+                }
+            }
+            points.push((sample.time_s, y));
+        }
+        if let Some(&(_, last_y)) = points.last() {
+            points.push((end_s, last_y));
+        }
+        let colour = Palette99::pick(index).to_rgba();
+        levels
+            .draw_series(LineSeries::new(points, colour.stroke_width(2)))?
+            .label(*task)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+    }
+    levels
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
+}

@@ -10,7 +10,8 @@ use runtime::registry::PluginRegistry;
 use sim::outcome::{SimOutcome, SimSummary};
 use sim::realism::Realism;
 use sim::tractor::PathKind;
-use sitl::mission::{simulate, Faults, SimOptions, WindKind};
+use runtime::record::ConfigFile;
+use sitl::mission::{simulate, Faults, SimOptions, SimRecording, WindKind};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -136,6 +137,8 @@ pub struct SimArgs {
     /// The served world stops after this long.
     #[arg(long, value_name = "S", default_value_t = 600.0, requires = "serve")]
     pub max_time_s: f64,
+    #[command(flatten)]
+    pub recording: crate::replay::RecordArgs,
 }
 
 impl SimArgs {
@@ -202,6 +205,12 @@ pub fn run(args: &SimArgs) -> ExitCode {
     if !args.merge.is_empty() {
         return crate::evaluate::run_merge(args);
     }
+    let recording = args.recording.options();
+    let several = args.evaluate || args.evaluate_hazards || args.evaluate_paths || args.serve;
+    if recording.is_some() && (several || args.runs() > 1) {
+        eprintln!("error: --record and --foxglove record one mission: leave out --runs, --evaluate*, --serve");
+        return ExitCode::from(EXIT_INVALID_CONFIG);
+    }
     let Some((model, registry)) = load(&args.file, args.json) else {
         return ExitCode::from(EXIT_INVALID_CONFIG);
     };
@@ -220,7 +229,22 @@ pub fn run(args: &SimArgs) -> ExitCode {
     let options = |seed: u64| args.options(seed);
     let runs = args.runs();
     if runs == 1 {
-        let outcome = match simulate(&model, &registry, &options(args.seed)) {
+        let mut options = options(args.seed);
+        if let Some(recorder) = recording {
+            match ConfigFile::collect(&args.file, &model.config) {
+                Ok(config_files) => {
+                    options.record = Some(SimRecording {
+                        recorder,
+                        config_files,
+                    })
+                }
+                Err(error) => {
+                    eprintln!("error: {error}");
+                    return ExitCode::FAILURE;
+                }
+            }
+        }
+        let outcome = match simulate(&model, &registry, &options) {
             Ok(outcome) => outcome,
             Err(error) => {
                 eprintln!("error: {error}");
@@ -236,13 +260,19 @@ pub fn run(args: &SimArgs) -> ExitCode {
             print!("{}", report(&outcome));
         }
         if let Some(svg) = &args.svg {
-            match crate::plot::mission_svg(&outcome)
-                .and_then(|doc| std::fs::write(svg, doc).map_err(|e| e.to_string()))
-            {
-                Ok(()) => eprintln!("wrote {}", svg.display()),
-                Err(error) => {
-                    eprintln!("error: cannot write {}: {error}", svg.display());
-                    return ExitCode::FAILURE;
+            // The tracks and battery where asked, the QoS levels and battery beside it.
+            let qos_path = qos_svg_path(svg);
+            let plots = [
+                (svg.clone(), crate::plot::mission_svg(&outcome)),
+                (qos_path, crate::plot::qos_svg(&outcome)),
+            ];
+            for (path, plot) in plots {
+                match plot.and_then(|doc| std::fs::write(&path, doc).map_err(|e| e.to_string())) {
+                    Ok(()) => eprintln!("wrote {}", path.display()),
+                    Err(error) => {
+                        eprintln!("error: cannot write {}: {error}", path.display());
+                        return ExitCode::FAILURE;
+                    }
                 }
             }
         }
@@ -288,6 +318,12 @@ pub fn run(args: &SimArgs) -> ExitCode {
     } else {
         ExitCode::from(EXIT_NOT_LANDED)
     }
+}
+
+/// Where the QoS plot goes beside `--svg PATH`: `PATH` with `-qos` before its extension.
+fn qos_svg_path(svg: &Path) -> PathBuf {
+    let stem = svg.file_stem().map_or("mission".into(), |s| s.to_string_lossy());
+    svg.with_file_name(format!("{stem}-qos.svg"))
 }
 
 fn load(file: &Path, json: bool) -> Option<(MissionModel, PluginRegistry)> {
@@ -793,7 +829,7 @@ fn path_table(rows: &[PathRow], args: &SimArgs, wall_s: f64) -> String {
 }
 
 /// `TASK=VALUE` for `--fix`.
-fn parse_fixed_level(text: &str) -> Result<(String, f64), String> {
+pub(crate) fn parse_fixed_level(text: &str) -> Result<(String, f64), String> {
     let (task, value) = text
         .split_once('=')
         .ok_or_else(|| format!("expected TASK=VALUE (e.g. detection=10), found `{text}`"))?;

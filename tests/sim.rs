@@ -32,6 +32,12 @@ fn the_reference_mission_lands_and_reports_as_json_and_svg() {
     assert!(outcome["flight_energy_wh"].as_f64().unwrap() > 0.5);
     let document = std::fs::read_to_string(&svg).unwrap();
     assert!(document.starts_with("<svg") && document.contains("tractor"));
+    // Beside it, the QoS level of every task and the battery over time.
+    let qos = std::fs::read_to_string(dir.path().join("mission-qos.svg")).unwrap();
+    assert!(qos.starts_with("<svg") && qos.contains("QoS level"));
+    for task in ["detection", "tracking", "landing", "hazard"] {
+        assert!(qos.contains(&format!(">{task}<")), "no {task} in the QoS plot");
+    }
 }
 
 #[test]

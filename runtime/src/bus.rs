@@ -18,7 +18,7 @@ use std::any::{type_name, Any, TypeId};
 use std::collections::{BTreeMap, VecDeque};
 use std::fmt;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock, PoisonError};
 
 /// One message: the value, when it was stamped, and its sequence number on its topic
 /// (1 for the first message published, counting every message ever offered).
@@ -106,6 +106,8 @@ pub enum BusError {
     ZeroCapacity { topic: String },
     #[error("queue `{topic}` already has its receiver; a queue has exactly one")]
     ReceiverTaken { topic: String },
+    #[error("topic `{topic}` is already tapped; a topic has at most one tap (one recorder)")]
+    AlreadyTapped { topic: String },
 }
 
 /// A queue refused a message (its policy is [`Overflow::Reject`] and it is full); here it is back.
@@ -224,6 +226,18 @@ impl Bus {
         Ok(QueueReceiver { queue })
     }
 
+    /// Hands every message published on the latest-value topic `topic` from now on to `tap`,
+    /// on the publisher's thread, in publication order (a recorder: the tap only queues the
+    /// message for its own thread).
+    pub fn tap<T: Send + Sync + 'static>(&self, topic: &str, tap: Tap<T>) -> Result<(), BusError> {
+        self.latest_slot::<T>(topic)?
+            .tap
+            .set(tap)
+            .map_err(|_| BusError::AlreadyTapped {
+                topic: topic.to_string(),
+            })
+    }
+
     /// Every topic with its counters, by name.
     pub fn topics(&self) -> Vec<TopicInfo> {
         lock(&self.topics)
@@ -251,6 +265,7 @@ impl Bus {
             let slot = Arc::new(LatestSlot::<T> {
                 message: Mutex::new(None),
                 published: AtomicU64::new(0),
+                tap: OnceLock::new(),
             });
             (slot.clone(), slot)
         })?;
@@ -347,9 +362,13 @@ fn downcast<S: Send + Sync + 'static>(
     })
 }
 
+/// What a tapped topic hands each message to.
+pub type Tap<T> = Box<dyn Fn(&Arc<Message<T>>) + Send + Sync>;
+
 struct LatestSlot<T> {
     message: Mutex<Option<Arc<Message<T>>>>,
     published: AtomicU64,
+    tap: OnceLock<Tap<T>>,
 }
 
 impl<T: Send + Sync> TopicCounters for LatestSlot<T> {
@@ -385,7 +404,11 @@ impl<T> Publisher<T> {
         let mut slot = lock(&self.slot.message);
         // Numbered under the lock so the slot's sequence numbers only grow.
         let seq = self.slot.published.fetch_add(1, Ordering::AcqRel) + 1;
-        *slot = Some(Arc::new(Message { stamp, seq, value }));
+        let message = Arc::new(Message { stamp, seq, value });
+        if let Some(tap) = self.slot.tap.get() {
+            tap(&message);
+        }
+        *slot = Some(message);
         seq
     }
 }
@@ -600,6 +623,39 @@ mod tests {
         publisher.publish(Timestamp::from_millis(30), Marker { x_m: 3.0 });
         assert_eq!(subscriber.peek().unwrap().seq, 3);
         assert!(subscriber.updated(), "peek does not mark the message seen");
+    }
+
+    #[test]
+    fn a_tap_sees_every_message_in_order_where_a_reader_sees_the_latest() {
+        let bus = Bus::new();
+        let publisher = bus.publisher::<Marker>("marker").unwrap();
+        publisher.publish(Timestamp::from_millis(1), Marker { x_m: 0.0 });
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let log = seen.clone();
+        let tap: Tap<Marker> = Box::new(move |m: &Arc<Message<Marker>>| {
+            lock(&log).push((m.seq, m.value.x_m));
+        });
+        bus.tap::<Marker>("marker", tap).unwrap();
+        let mut reader = bus.subscriber::<Marker>("marker").unwrap();
+        for i in 1..=3 {
+            publisher.publish(Timestamp::from_millis(10 * i), Marker { x_m: i as f64 });
+        }
+        // The reader had the newest; the tap every message since it was set, none before.
+        assert_eq!(reader.take_new().unwrap().seq, 4);
+        assert_eq!(*lock(&seen), [(2, 1.0), (3, 2.0), (4, 3.0)]);
+        // One tap per topic; another type is the usual mismatch.
+        let second: Tap<Marker> = Box::new(|_| {});
+        assert_eq!(
+            bus.tap::<Marker>("marker", second),
+            Err(BusError::AlreadyTapped {
+                topic: "marker".into()
+            })
+        );
+        let other: Tap<f64> = Box::new(|_| {});
+        assert!(matches!(
+            bus.tap::<f64>("marker", other),
+            Err(BusError::TypeMismatch { .. })
+        ));
     }
 
     #[test]

@@ -16,6 +16,7 @@ pub mod mission;
 pub mod plugins;
 pub mod power_meter;
 pub mod profile_sweep;
+pub mod record;
 pub mod registry;
 pub mod scheduler;
 pub mod task;

@@ -164,7 +164,7 @@ impl QosLevel {
 }
 
 /// A task's health as the rest of the mission sees it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum TaskHealth {
     Running,
     /// Failed; a fresh instance is built at its next activation.

@@ -24,7 +24,7 @@ pub struct CameraFrame {
 }
 
 /// What the detector made of one frame.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize)]
 pub struct MarkerObservation {
     pub frame_index: u64,
     /// `None` when the pad was not seen (or the frame could not be read: see `frame_error`).
@@ -44,7 +44,7 @@ pub const RELATIVE_STATE: &str = "tracking/relative_state";
 pub const LANDING_SETPOINT: &str = "landing/setpoint";
 
 /// What the autopilot says about the vehicle.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct VehicleState {
     pub attitude: algorithms::estimation::projection::Attitude,
     pub velocity_ned_m_s: nalgebra::Vector3<f64>,
@@ -65,7 +65,7 @@ pub struct VehicleState {
 }
 
 /// The tracker's output.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct RelativeState {
     pub estimate: algorithms::estimation::kalman::RelativeEstimate,
     /// The platform's velocity, once two fixes far enough apart have come in.
@@ -75,7 +75,7 @@ pub struct RelativeState {
 }
 
 /// The landing logic's output, for the autopilot link.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct LandingSetpoint {
     pub mode: algorithms::control::landing::LandingMode,
     pub velocity_setpoint_ned_m_s: nalgebra::Vector3<f64>,
@@ -89,7 +89,7 @@ pub struct LandingSetpoint {
 pub const MISSION_PHASE: &str = "mission/phase";
 
 /// Which phase of the mission is flying.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct MissionPhase {
     /// Index into the config's `[[mission.phase]]`, in flight order.
     pub index: usize,
@@ -102,7 +102,7 @@ pub struct MissionPhase {
 pub const HAZARDS: &str = "vision/hazards";
 
 /// One hazard the CNN saw.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct HazardDetection {
     /// Index into the task's `classes`.
     pub class_id: usize,
@@ -116,7 +116,7 @@ pub struct HazardDetection {
 }
 
 /// What the hazard CNN made of one frame.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct HazardReport {
     pub frame_index: u64,
     /// When the frame was captured (the camera message's stamp), seconds on the task clock.
@@ -124,7 +124,9 @@ pub struct HazardReport {
     pub detections: Vec<HazardDetection>,
     /// The inference backend that ran ("tract-cpu", "onnxruntime-cuda", ...).
     pub backend: &'static str,
-    /// Wall time of preprocessing, inference and decoding.
+    /// Wall time of preprocessing, inference and decoding (a measurement of the machine, not
+    /// an output: left out of a recording's outputs, which a replay compares bit for bit).
+    #[serde(skip)]
     pub inference_ms: f64,
 }
 
@@ -180,7 +182,7 @@ pub struct DepthFrame {
 pub const HYBRID_TRACKING_STATUS: &str = "tracking/hybrid_status";
 
 /// What the hybrid tracker did so far: counts since it started, and the latest frame's sources.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
 pub struct HybridTrackingStatus {
     /// Detector observations processed (one per frame the detector looked at).
     pub frames: u64,

@@ -20,6 +20,14 @@ pub struct TrackSample {
     pub battery_soc: f64,
 }
 
+/// The QoS level every task ran at from `time_s` on (task, level index, knob value), for the
+/// SVG of levels over time.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct QosSample {
+    pub time_s: f64,
+    pub levels: Vec<(String, usize, f64)>,
+}
+
 /// How one simulated mission went.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct SimOutcome {
@@ -66,6 +74,12 @@ pub struct SimOutcome {
     pub localisation: Option<LocalisationError>,
     #[serde(skip)]
     pub track: Vec<TrackSample>,
+    /// Wall time of one turn of the runtime's loop (the tasks run inside it in lockstep), µs.
+    pub loop_step_p50_us: f64,
+    pub loop_step_p99_us: f64,
+    /// Every change of the tasks' levels (with `record_track`).
+    #[serde(skip)]
+    pub qos_track: Vec<QosSample>,
 }
 
 /// The runtime's estimate of the UAV's position relative to the pad (the tracker's

@@ -19,6 +19,9 @@ use runtime::energy::MissionModel;
 use runtime::link::{LinkConfig, MavlinkLink};
 use runtime::mission::runner::LOCKSTEP_TIMEOUT;
 use runtime::mission::{MissionEvent, MissionPlan, MissionRunner, RunnerError, RunnerOptions};
+use runtime::record::{
+    ConfigFile, Recorder, RecorderOptions, RecordError, RecordingHeader, RecordingSource,
+};
 use runtime::registry::PluginRegistry;
 use runtime::scheduler::{Pinning, RealTimeOptions, SchedulerBuilder, TaskScheduler};
 use runtime::topics::{
@@ -29,7 +32,7 @@ use sim::autopilot::StreamRates;
 use sim::camera::{PendingFrame, SimCamera, SimCameraConfig};
 use sim::estimate::EstimatedTelemetry;
 use sim::gimbal::{Gimbal, GimbalError, GimbalParams};
-use sim::outcome::{LocalisationAccumulator, QosChange, SimOutcome, TrackSample};
+use sim::outcome::{LocalisationAccumulator, QosChange, QosSample, SimOutcome, TrackSample};
 use sim::power::{RotorPowerModel, SimBattery, SimPack};
 use sim::realism::{CameraRealism, DriverBehaviour, PadMotion, Realism};
 use sim::scene::PadOccluder;
@@ -94,6 +97,16 @@ pub struct SimOptions {
     pub realism: Realism,
     /// Threads a camera frame is rendered on; 0: one per core.
     pub render_threads: usize,
+    /// Record the mission to MCAP and/or serve it live to Foxglove.
+    pub record: Option<SimRecording>,
+}
+
+/// Where a simulated mission is recorded, and the config files it flies (the recording keeps
+/// them, so a replay needs nothing else).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimRecording {
+    pub recorder: RecorderOptions,
+    pub config_files: Vec<ConfigFile>,
 }
 
 impl Default for SimOptions {
@@ -113,6 +126,7 @@ impl Default for SimOptions {
             real_time: false,
             realism: Realism::default(),
             render_threads: 0,
+            record: None,
         }
     }
 }
@@ -125,6 +139,8 @@ pub enum SimError {
     Scheduler(#[from] runtime::scheduler::SchedulerError),
     #[error("MAVLink: {0}")]
     Link(String),
+    #[error(transparent)]
+    Record(#[from] RecordError),
     #[error("--fix {task}={value}: {why}")]
     FixedLevel {
         task: String,
@@ -292,21 +308,42 @@ pub fn simulate(
     let bus = scheduler.bus().clone();
     // The camera's frames reach the runtime as a real camera's do: through a frame source.
     let frames = MemorySource::new();
+    let mut events: Vec<(f64, String)> = Vec::new();
+    let runner_options = RunnerOptions {
+        landing_target: false,
+        fixed_levels: options.fixed_levels.clone(),
+    };
     let mut runner = MissionRunner::new(
         model.clone(),
         scheduler,
         link,
-        plan,
+        plan.clone(),
         Some(Box::new(frames.clone())),
-        RunnerOptions {
-            landing_target: false,
-            fixed_levels: options.fixed_levels.clone(),
-        },
+        runner_options.clone(),
     )
     .map_err(|error| match error {
         RunnerError::FixedLevel { task, value, why } => SimError::FixedLevel { task, value, why },
         other => SimError::Setup(other.to_string()),
     })?;
+    if let Some(record) = &options.record {
+        let header = RecordingHeader::new(
+            RecordingSource::Sim,
+            options.seed,
+            plan,
+            config,
+            &runner_options,
+            true,
+            record
+                .config_files
+                .first()
+                .map_or_else(String::new, |f| f.path.clone()),
+        );
+        let recorder = Recorder::start(&record.recorder, &header, &record.config_files)?;
+        if let Some(port) = recorder.live_port() {
+            events.push((0.0, format!("serving Foxglove's WebSocket on port {port}")));
+        }
+        runner.record(recorder).map_err(|e| setup(&e))?;
+    }
     // The tasks that look at camera frames: a frame is rendered only when one will.
     let camera_consumers: Vec<String> = config
         .tasks
@@ -344,8 +381,8 @@ pub fn simulate(
     let mut hazard_score = HazardScore::default();
     let mut hazard_backend: Option<&'static str> = None;
 
-    let mut events: Vec<(f64, String)> = Vec::new();
     let mut track = Vec::new();
+    let mut qos_track = Vec::new();
     let mut landing_started_s: Option<f64> = None;
     let mut tracking_started_s: Option<f64> = None;
     let mut landing_aborts = 0u32;
@@ -566,6 +603,17 @@ pub fn simulate(
             events.push((time_s, "battery empty: the vehicle falls".into()));
             break;
         }
+        if options.record_track {
+            let levels: Vec<(String, usize, f64)> = runner
+                .qos_levels()
+                .tasks
+                .into_iter()
+                .map(|(task, l)| (task, l.level, l.value))
+                .collect();
+            if qos_track.last().is_none_or(|last: &QosSample| last.levels != levels) {
+                qos_track.push(QosSample { time_s, levels });
+            }
+        }
         if options.record_track && time_s >= next_track_s {
             let position = vehicle.position_ned_m();
             let pose = tractor.pose();
@@ -587,6 +635,19 @@ pub fn simulate(
     }
     let end_s = tick as f64 * TICK_S;
     runner.stop();
+    if let Some(summary) = runner.finish_recording().transpose()? {
+        events.push((
+            end_s,
+            format!(
+                "recorded {} messages ({:.1} MB){}",
+                summary.total_messages(),
+                summary.bytes as f64 / 1e6,
+                summary
+                    .file
+                    .map_or_else(String::new, |path| format!(" to {}", path.display()))
+            ),
+        ));
+    }
     let stats = runner.scheduler().stats();
     let failed_tasks = runner
         .scheduler()
@@ -602,6 +663,7 @@ pub fn simulate(
         })
         .collect();
     let log = runner.log();
+    let loop_step = log.loop_step();
     let qos_changes = log
         .governor
         .iter()
@@ -646,6 +708,9 @@ pub fn simulate(
         speedup: end_s / wall_s.max(1e-9),
         localisation: localisation.finish(),
         track,
+        qos_track,
+        loop_step_p50_us: loop_step.p50_us,
+        loop_step_p99_us: loop_step.p99_us,
     })
 }
 

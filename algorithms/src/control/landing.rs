@@ -40,7 +40,7 @@ pub enum HorizontalController {
 }
 
 /// The mode of the landing procedure.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub enum LandingMode {
     /// No target yet: hold position at the initial height IH.
     Search,

@@ -14,7 +14,7 @@ use nalgebra::Vector3;
 use super::projection::Attitude;
 
 /// One telemetry sample.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct AttitudeSample {
     pub time_s: f64,
     pub attitude: Attitude,

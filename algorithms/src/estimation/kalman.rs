@@ -95,7 +95,7 @@ pub struct VisionFix {
 }
 
 /// The tracker's estimate at `time_s`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct RelativeEstimate {
     pub time_s: f64,
     /// UAV − platform, NED, metres.

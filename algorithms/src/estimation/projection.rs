@@ -186,7 +186,7 @@ pub enum ProjectionError {
 }
 
 /// The vehicle's attitude as PX4 reports it: ZYX Euler angles of the FRD body in NED.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize)]
 pub struct Attitude {
     pub roll_rad: f64,
     pub pitch_rad: f64,

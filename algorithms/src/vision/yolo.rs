@@ -33,7 +33,7 @@ impl YoloFormat {
 }
 
 /// An axis-aligned box in pixels: `x` right, `y` down, min corner inclusive.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct PixelBox {
     pub x_min: f64,
     pub y_min: f64,

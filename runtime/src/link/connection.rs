@@ -193,7 +193,7 @@ fn signing_config(key: [u8; 32]) -> SigningConfig {
 }
 
 /// One batch from a transport.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Incoming {
     pub messages: Vec<(MavHeader, MavMessage)>,
     /// A datagram (UDP) or frame (stream) that held no valid MAVLink message.
@@ -208,6 +208,54 @@ pub struct Incoming {
 pub enum Transport {
     Udp(UdpTransport),
     Stream(Box<mavlink::Connection<MavMessage>>),
+    /// A recording played back (`qosrt replay`): what each step received, in order.
+    Replay(ReplayFeed),
+}
+
+/// The MAVLink a recorded flight received, handed to the link batch by batch; what the link
+/// sends goes nowhere (the recording is not a vehicle).
+#[derive(Debug, Clone, Default)]
+pub struct ReplayFeed {
+    batches: std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<Incoming>>>,
+}
+
+impl ReplayFeed {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Queues one recorded batch for the link's next receive.
+    pub fn push(&self, incoming: Incoming) {
+        self.lock().push_back(incoming);
+    }
+
+    /// Batches not yet received.
+    pub fn len(&self) -> usize {
+        self.lock().len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::VecDeque<Incoming>> {
+        self.batches
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// The next batch; waiting for one that the recording does not hold (a lockstep barrier
+    /// cut off by the end of a truncated file) is an error, not a wait.
+    fn receive(&self, wait: Option<Duration>) -> io::Result<Option<Incoming>> {
+        match (self.lock().pop_front(), wait) {
+            (Some(incoming), _) => Ok(Some(incoming)),
+            (None, None) => Ok(None),
+            (None, Some(_)) => Err(io::Error::new(
+                ErrorKind::UnexpectedEof,
+                "the recording holds no more MAVLink for this step",
+            )),
+        }
+    }
 }
 
 impl Transport {
@@ -216,6 +264,7 @@ impl Transport {
     pub fn receive(&mut self, wait: Option<Duration>) -> io::Result<Option<Incoming>> {
         match self {
             Self::Udp(udp) => udp.receive(wait),
+            Self::Replay(feed) => feed.receive(wait),
             Self::Stream(connection) => {
                 let deadline = wait.map(|wait| Instant::now() + wait);
                 loop {
@@ -251,6 +300,7 @@ impl Transport {
     pub fn send(&mut self, header: MavHeader, message: &MavMessage) -> io::Result<bool> {
         match self {
             Self::Udp(udp) => udp.send(header, message),
+            Self::Replay(_) => Ok(true),
             Self::Stream(connection) => {
                 connection
                     .send(&header, message)
@@ -267,7 +317,7 @@ impl Transport {
     pub fn local_addr(&self) -> Option<SocketAddr> {
         match self {
             Self::Udp(udp) => udp.socket.local_addr().ok(),
-            Self::Stream(_) => None,
+            Self::Stream(_) | Self::Replay(_) => None,
         }
     }
 }

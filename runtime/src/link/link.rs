@@ -20,7 +20,7 @@
 //! **Not lockstep** (real autopilot): TIMESYNC requests (tc1 = 0) are answered with
 //! tc1 = own clock in ns and ts1 echoed, and used for nothing else.
 
-use super::connection::{ConnectionSpec, Incoming, Transport};
+use super::connection::{ConnectionSpec, Incoming, ReplayFeed, Transport};
 use super::mapping::{
     command_message, companion_heartbeat, AutopilotKind, AutopilotStatus, CommandAck,
     CommandTarget, TelemetryState, VehicleCommand,
@@ -159,6 +159,15 @@ pub struct MavlinkLink {
     stats: LinkStats,
     /// Messages from the autopilot, by MAVLink message name.
     received_by_type: std::collections::BTreeMap<&'static str, u64>,
+    /// What was received and sent since the recorder last took it, while one records.
+    capture: Option<LinkCapture>,
+}
+
+/// What the link received (every batch, as it came) and sent, for a recorder.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct LinkCapture {
+    pub received: Vec<Incoming>,
+    pub sent: Vec<(MavHeader, MavMessage)>,
 }
 
 impl MavlinkLink {
@@ -170,6 +179,21 @@ impl MavlinkLink {
 
     pub fn open(spec: &ConnectionSpec, config: LinkConfig) -> Result<Self, LinkError> {
         Ok(Self::with_transport(spec.open(config.signing_key)?, config))
+    }
+
+    /// A link over a recording's MAVLink (`qosrt replay`): it receives what `feed` is given.
+    pub fn replay(feed: ReplayFeed, config: LinkConfig) -> Self {
+        Self::with_transport(Transport::Replay(feed), config)
+    }
+
+    /// Keeps what is received and sent from now on for [`Self::take_capture`] (a recorder).
+    pub fn start_capture(&mut self) {
+        self.capture.get_or_insert_with(LinkCapture::default);
+    }
+
+    /// What was received and sent since the last call (nothing unless capturing).
+    pub fn take_capture(&mut self) -> LinkCapture {
+        self.capture.as_mut().map(std::mem::take).unwrap_or_default()
     }
 
     /// `udpin` on 127.0.0.1 with an OS-chosen port, for the simulator: give
@@ -200,6 +224,7 @@ impl MavlinkLink {
             autopilot_kind: AutopilotKind::Px4,
             stats: LinkStats::default(),
             received_by_type: std::collections::BTreeMap::new(),
+            capture: None,
         }
     }
 
@@ -363,6 +388,9 @@ impl MavlinkLink {
         update: &mut LinkUpdate,
         lockstep: Option<u64>,
     ) -> Option<u64> {
+        if let Some(capture) = &mut self.capture {
+            capture.received.push(incoming.clone());
+        }
         self.stats.unsigned += incoming.unsigned as u64;
         if incoming.malformed {
             self.stats.malformed += 1;
@@ -510,6 +538,9 @@ impl MavlinkLink {
             sequence: self.sequence,
         };
         self.sequence = self.sequence.wrapping_add(1);
+        if let Some(capture) = &mut self.capture {
+            capture.sent.push((header, message.clone()));
+        }
         if self.transport.send(header, message)? {
             self.stats.messages_sent += 1;
             Ok(Sent::Sent)

@@ -8,8 +8,10 @@ pub mod connection;
 pub mod link;
 pub mod mapping;
 
-pub use connection::ConnectionSpec;
-pub use link::{FailsafeAction, LinkConfig, LinkStats, LinkStatus, LinkUpdate, MavlinkLink, Sent};
+pub use connection::{ConnectionSpec, Incoming, ReplayFeed};
+pub use link::{
+    FailsafeAction, LinkCapture, LinkConfig, LinkStats, LinkStatus, LinkUpdate, MavlinkLink, Sent,
+};
 pub use mapping::{
     AckResult, AutopilotKind, AutopilotMode, AutopilotStatus, CommandAck, SetpointSequencer,
     VehicleCommand,

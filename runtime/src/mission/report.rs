@@ -105,12 +105,21 @@ pub struct MissionLog {
     /// with the vision fix it gave.
     #[serde(skip)]
     pub(crate) capture_to_setpoint: crate::scheduler::stats::Histogram,
+    /// Wall time of one turn of the loop (link, governor, camera, tasks in virtual time,
+    /// sequencer, commands, recording).
+    #[serde(skip)]
+    pub(crate) loop_step: crate::scheduler::stats::Histogram,
 }
 
 impl MissionLog {
     /// Capture-to-setpoint latency of the vision loop (count 0 when it never steered).
     pub fn capture_to_setpoint(&self) -> crate::scheduler::DurationSummary {
         self.capture_to_setpoint.summary()
+    }
+
+    /// Wall time of the loop's steps.
+    pub fn loop_step(&self) -> crate::scheduler::DurationSummary {
+        self.loop_step.summary()
     }
 
     pub fn event(&mut self, time_s: f64, what: String) {

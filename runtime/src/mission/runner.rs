@@ -17,6 +17,9 @@ use crate::clock::Timestamp;
 use crate::energy::MissionModel;
 use crate::governor::{companion_power_w, Governor, GovernorEvent};
 use crate::link::{FailsafeAction, LinkError, LinkStatus, LinkUpdate, MavlinkLink, VehicleCommand};
+use crate::record::channels::StepRecord;
+use crate::record::recorder::{BatteryEstimate, QosLevels, TaskLevelRecord};
+use crate::record::{RecordError, Recorder, RecordingSummary};
 use crate::scheduler::{PhaseGate, SchedulerError, TaskScheduler};
 use crate::telemetry::MissionProgress;
 use crate::topics::{
@@ -120,6 +123,9 @@ pub struct MissionRunner<S: TaskScheduler> {
     started: bool,
     /// Stream requests sent so far, and when the last went.
     stream_requests: (u32, f64),
+    /// Where the run is recorded, if it is, and the levels it last recorded.
+    recorder: Option<Recorder>,
+    recorded_levels: Option<QosLevels>,
 }
 
 impl<S: TaskScheduler> MissionRunner<S> {
@@ -161,12 +167,80 @@ impl<S: TaskScheduler> MissionRunner<S> {
             log: MissionLog::default(),
             started: false,
             stream_requests: (0, f64::NEG_INFINITY),
+            recorder: None,
+            recorded_levels: None,
         })
+    }
+
+    /// Records the run from now on: what the link receives and sends, the frames, every
+    /// recorded bus topic, governor decisions, levels, battery and events.
+    pub fn record(&mut self, recorder: Recorder) -> Result<(), RunnerError> {
+        recorder.tap_bus(self.scheduler.bus())?;
+        self.link.start_capture();
+        self.recorder = Some(recorder);
+        Ok(())
+    }
+
+    /// Ends the recording (after [`Self::stop`]: the tasks' statistics go in last).
+    pub fn finish_recording(&mut self) -> Option<Result<RecordingSummary, RecordError>> {
+        let recorder = self.recorder.take()?;
+        recorder.task_stats(self.scheduler.now().as_secs_f64(), self.scheduler.stats());
+        Some(recorder.finish())
+    }
+
+    /// A mission event: in the run's log, and in the recording.
+    fn note(&mut self, now_s: f64, text: String) {
+        if let Some(recorder) = &self.recorder {
+            recorder.event(now_s, text.clone());
+        }
+        self.log.event(now_s, text);
+    }
+
+    /// The level (and knob value) every task runs at now: fixed, else the governor's.
+    pub fn qos_levels(&self) -> QosLevels {
+        QosLevels {
+            tasks: self
+                .with_fixed(self.governor.current_levels())
+                .iter()
+                .filter_map(|l| {
+                    let task = self.model.config.tasks.get(l.task)?;
+                    Some((
+                        task.name.clone(),
+                        TaskLevelRecord {
+                            level: l.level,
+                            value: *task.levels.get(l.level)?,
+                        },
+                    ))
+                })
+                .collect(),
+        }
+    }
+
+    /// What this step gave the recording: the link's traffic, the levels if they changed, and
+    /// the step itself (last: a replay runs a step once its inputs are in).
+    fn record_step(&mut self, now_s: f64, lockstep: Option<u64>) {
+        let Some(recorder) = &self.recorder else {
+            return;
+        };
+        recorder.link(now_s, self.link.take_capture());
+        let levels = self.qos_levels();
+        let Some(recorder) = &self.recorder else {
+            return;
+        };
+        if self.recorded_levels.as_ref() != Some(&levels) {
+            recorder.levels(now_s, levels.clone());
+            self.recorded_levels = Some(levels);
+        }
+        recorder.step(StepRecord {
+            now_s,
+            lockstep_ns: lockstep,
+        });
     }
 
     /// One turn of the loop at `now_s`. `lockstep`: the simulated autopilot's tick (its
     /// TIMESYNC barrier, in ns); `None` on the wall clock.
     pub fn step(&mut self, now_s: f64, lockstep: Option<u64>) -> Result<StepReport, RunnerError> {
+        let started = std::time::Instant::now();
         let now = Timestamp::from_secs_f64(now_s);
         if !self.started {
             self.scheduler.set_phase(&PhaseGate::NoPhase);
@@ -198,7 +272,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
         if let Some(mode) = landing.map(|l| l.mode) {
             if self.last_landing_mode != Some(mode) {
                 self.last_landing_mode = Some(mode);
-                self.log.event(now_s, format!("landing: {mode:?}"));
+                self.note(now_s, format!("landing: {mode:?}"));
             }
         }
         let telemetry = self.link.telemetry();
@@ -231,6 +305,10 @@ impl<S: TaskScheduler> MissionRunner<S> {
         if let Some(t_ns) = lockstep {
             self.link.end_tick(t_ns)?;
         }
+        self.record_step(now_s, lockstep);
+        self.log
+            .loop_step
+            .record(started.elapsed().as_nanos() as u64);
         Ok(StepReport {
             link: update.status,
             commands,
@@ -244,7 +322,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
     pub fn request_landing(&mut self, now_s: f64, reason: &str) -> Result<(), RunnerError> {
         let (commands, events) = self.sequencer.request_landing(reason);
         for event in &events {
-            self.log.event(now_s, describe_mission(event));
+            self.note(now_s, describe_mission(event));
         }
         for command in &commands {
             self.link.send(command)?;
@@ -316,6 +394,15 @@ impl<S: TaskScheduler> MissionRunner<S> {
             return Ok(());
         };
         self.log.battery(sample);
+        if let Some(recorder) = &self.recorder {
+            recorder.battery(
+                now_s,
+                BatteryEstimate {
+                    telemetry: sample,
+                    companion_power_w: self.companion_power_w(),
+                },
+            );
+        }
         let status = self.sequencer.status();
         let progress = status.phase.map_or(MissionProgress::start(), |p| {
             MissionProgress::new(p, now_s - status.phase_started_s)
@@ -328,18 +415,22 @@ impl<S: TaskScheduler> MissionRunner<S> {
                     }
                     let description = event.describe(&self.model.config.tasks);
                     tracing::info!(time_s = now_s, "governor: {description}");
-                    self.log.governor(GovernorDecision::from_event(
+                    let decision = GovernorDecision::from_event(
                         now_s,
                         &event,
                         &self.model.config.tasks,
                         description,
-                    ));
+                    );
+                    if let Some(recorder) = &self.recorder {
+                        recorder.governor(decision.clone());
+                    }
+                    self.log.governor(decision);
                 }
                 self.apply_levels()?;
             }
             Err(error) => {
                 self.log.telemetry_refused += 1;
-                self.log.event(now_s, format!("telemetry refused: {error}"));
+                self.note(now_s, format!("telemetry refused: {error}"));
             }
         }
         Ok(())
@@ -350,10 +441,19 @@ impl<S: TaskScheduler> MissionRunner<S> {
         let Some(camera) = self.camera.as_mut() else {
             return;
         };
+        let mut faults = Vec::new();
         loop {
             match camera.next_frame(now_s) {
                 Ok(Some(captured)) => {
                     self.log.frames += 1;
+                    if let Some(recorder) = &self.recorder {
+                        recorder.frame(
+                            now_s,
+                            captured.capture_time_s,
+                            captured.frame.frame_index,
+                            captured.frame.image.clone(),
+                        );
+                    }
                     let capture_s = captured.capture_time_s.min(now_s);
                     let mut frame = captured.frame;
                     frame.vehicle_at_capture = self.vehicle_history.at(capture_s);
@@ -362,7 +462,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 }
                 Ok(None) => break,
                 Err(error @ CameraSourceError::Ended { .. }) => {
-                    self.log.event(now_s, format!("camera: {error}"));
+                    faults.push(format!("camera: {error}"));
                     self.ended_camera_stats = Some(camera.stats());
                     self.camera = None;
                     break;
@@ -370,10 +470,13 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 Err(error) => {
                     self.log.camera_errors += 1;
                     tracing::warn!(%error, "camera frame lost");
-                    self.log.event(now_s, format!("camera: {error}"));
+                    faults.push(format!("camera: {error}"));
                     break;
                 }
             }
+        }
+        for fault in faults {
+            self.note(now_s, fault);
         }
     }
 
@@ -388,7 +491,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
         for event in events {
             let line = describe_mission(event);
             tracing::info!(time_s = now_s, "mission: {line}");
-            self.log.event(now_s, line);
+            self.note(now_s, line);
         }
         let status = self.sequencer.status();
         let phase = if status.finished { None } else { status.phase };

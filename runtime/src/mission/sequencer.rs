@@ -71,7 +71,7 @@ pub enum MissionEvent {
 }
 
 /// The sequencer's configuration.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MissionPlan {
     /// Phase names in flight order.
     pub phase_names: Vec<String>,

@@ -149,11 +149,14 @@ pub struct SchedulerBuilder<'r> {
 }
 
 impl<'r> SchedulerBuilder<'r> {
+    /// The tasks' seed unless [`Self::seed`] sets another.
+    pub const DEFAULT_SEED: u64 = 0;
+
     pub fn new(registry: &'r PluginRegistry) -> Self {
         SchedulerBuilder {
             registry,
             tasks: Vec::new(),
-            seed: 0,
+            seed: Self::DEFAULT_SEED,
             bus: None,
             resources: None,
             record_trace: false,

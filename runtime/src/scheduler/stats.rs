@@ -114,7 +114,7 @@ pub struct DurationSummary {
 }
 
 /// A snapshot of one task's statistics.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct TaskStats {
     pub name: String,
     pub health: TaskHealth,

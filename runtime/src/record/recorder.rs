@@ -1,0 +1,648 @@
+//! The recorder: the mission runner and the bus hand it what happened, its own thread encodes
+//! it and writes the MCAP file (and serves it live over the Foxglove WebSocket protocol), so
+//! the loop and the tasks only queue a message.
+
+use super::channels::{self as ch, ChannelSpec, MavlinkBatch, MavlinkRecord, StepRecord};
+use super::{ConfigFile, RecordError, RecordingHeader, HEADER_METADATA};
+use crate::bus::{Bus, Message};
+use crate::link::LinkCapture;
+use crate::mission::GovernorDecision;
+use crate::scheduler::TaskStats;
+use crate::telemetry::BatteryTelemetry;
+use crate::topics::{
+    DepthFrame, HazardReport, HybridTrackingStatus, LandingSetpoint, MarkerObservation,
+    MissionPhase, RelativeState, VehicleState, DEPTH_FRAME, HAZARDS, HYBRID_TRACKING_STATUS,
+    LANDING_MARKER, LANDING_SETPOINT, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
+};
+use algorithms::vision::image::GrayImage;
+use serde::Serialize;
+use std::collections::{BTreeMap, HashMap};
+use std::io::{BufWriter, Cursor, Seek, SeekFrom, Write};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::mpsc;
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+/// Where a recording goes.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct RecorderOptions {
+    /// The MCAP file; `None` with `live` only serves the channels.
+    pub file: Option<PathBuf>,
+    /// Serve the channels live over the Foxglove WebSocket protocol on this address.
+    pub live: Option<SocketAddr>,
+    /// Keep the file in memory and hand it back when finished (a replay's own run).
+    pub in_memory: bool,
+    /// Leave out what a replay is fed (frames, telemetry in): a replay's own run records only
+    /// what it made.
+    pub outputs_only: bool,
+}
+
+/// One message, encoded, on its way to the file.
+struct Encoded {
+    spec: ChannelSpec,
+    log_time_ns: u64,
+    publish_time_ns: u64,
+    /// The MCAP sequence number; `None`: the channel's count.
+    sequence: Option<u32>,
+    data: Vec<u8>,
+}
+
+impl Encoded {
+    fn at(spec: ChannelSpec, time_ns: u64, data: Vec<u8>) -> Self {
+        Self {
+            spec,
+            log_time_ns: time_ns,
+            publish_time_ns: time_ns,
+            sequence: None,
+            data,
+        }
+    }
+}
+
+/// Work for the recorder's thread: encoding happens there, not on the caller's.
+type Job = Box<dyn FnOnce() -> Vec<Encoded> + Send>;
+
+/// What the recorder's thread is sent. The bus's taps hold senders for as long as the bus
+/// lives, so the end is a message, not the channel closing.
+enum Work {
+    Job(Job),
+    Finish,
+}
+
+/// What a finished recording holds.
+#[derive(Debug, Clone, Default)]
+pub struct RecordingSummary {
+    pub file: Option<PathBuf>,
+    /// Messages per topic.
+    pub messages: BTreeMap<String, u64>,
+    pub bytes: u64,
+    /// The file itself, when kept in memory.
+    pub data: Option<Vec<u8>>,
+}
+
+impl RecordingSummary {
+    pub fn total_messages(&self) -> u64 {
+        self.messages.values().sum()
+    }
+}
+
+/// A recording in progress. Dropping it finishes the file; [`Recorder::finish`] also says how
+/// it went.
+pub struct Recorder {
+    jobs: Option<mpsc::Sender<Work>>,
+    thread: Option<JoinHandle<Result<RecordingSummary, RecordError>>>,
+    outputs_only: bool,
+    live_port: Option<u16>,
+}
+
+fn ns(time_s: f64) -> u64 {
+    (time_s.max(0.0) * 1e9).round() as u64
+}
+
+impl Recorder {
+    /// Opens the file (and the live server), writes the header and the config files, and
+    /// starts the writer thread.
+    pub fn start(
+        options: &RecorderOptions,
+        header: &RecordingHeader,
+        config_files: &[ConfigFile],
+    ) -> Result<Self, RecordError> {
+        let output = match (&options.file, options.in_memory) {
+            (_, true) => Output::Memory(Cursor::new(Vec::new())),
+            (Some(path), false) => Output::File(BufWriter::new(
+                std::fs::File::create(path).map_err(|source| RecordError::Create {
+                    path: path.clone(),
+                    source,
+                })?,
+            )),
+            (None, false) => Output::None,
+        };
+        let mut writer = McapSink::new(output, options.file.clone())?;
+        writer.header(header, config_files)?;
+        let live = options.live.map(LiveServer::start).transpose()?;
+        let live_port = live.as_ref().map(|l| l.port);
+        let (jobs, receiver) = mpsc::channel::<Work>();
+        let thread = std::thread::Builder::new()
+            .name("qosrt-recorder".into())
+            .spawn(move || write_loop(receiver, writer, live))
+            .map_err(RecordError::Thread)?;
+        Ok(Self {
+            jobs: Some(jobs),
+            thread: Some(thread),
+            outputs_only: options.outputs_only,
+            live_port,
+        })
+    }
+
+    /// The live server's port, when serving.
+    pub fn live_port(&self) -> Option<u16> {
+        self.live_port
+    }
+
+    fn send(&self, job: Job) {
+        if let Some(jobs) = &self.jobs {
+            // The writer thread ends only when told to, or after a write error that finish
+            // reports: nothing to do here either way.
+            let _ = jobs.send(Work::Job(job));
+        }
+    }
+
+    /// Records every message published on the bus topics a recording keeps (and the depth
+    /// frames a simulator publishes, as input).
+    pub fn tap_bus(&self, bus: &Bus) -> Result<(), crate::bus::BusError> {
+        let [vehicle, phase, marker, relative, setpoint, hazards, hybrid] = ch::BUS_TOPICS;
+        self.tap(bus, VEHICLE_STATE, move |m: &Message<VehicleState>| {
+            let t = m.stamp.as_nanos();
+            let mut out = vec![Encoded::at(vehicle, t, ch::json(&m.value))];
+            if let Some((pose, tf)) = ch::vehicle_pose(t, &m.value) {
+                out.push(Encoded::at(ch::VEHICLE_POSE, t, pose));
+                out.push(Encoded::at(ch::VEHICLE_TF, t, tf));
+            }
+            out
+        })?;
+        self.tap(bus, MISSION_PHASE, move |m: &Message<MissionPhase>| {
+            vec![Encoded::at(phase, m.stamp.as_nanos(), ch::json(&m.value))]
+        })?;
+        self.tap(bus, LANDING_MARKER, move |m: &Message<MarkerObservation>| {
+            let t = m.stamp.as_nanos();
+            vec![
+                Encoded::at(marker, t, ch::json(&m.value)),
+                Encoded::at(ch::ANNOTATIONS, t, ch::marker_annotations(t, &m.value)),
+            ]
+        })?;
+        self.tap(bus, RELATIVE_STATE, move |m: &Message<RelativeState>| {
+            vec![Encoded::at(relative, m.stamp.as_nanos(), ch::json(&m.value))]
+        })?;
+        self.tap(bus, LANDING_SETPOINT, move |m: &Message<LandingSetpoint>| {
+            vec![Encoded::at(setpoint, m.stamp.as_nanos(), ch::json(&m.value))]
+        })?;
+        self.tap(bus, HAZARDS, move |m: &Message<HazardReport>| {
+            let t = m.stamp.as_nanos();
+            vec![
+                Encoded::at(hazards, t, ch::json(&m.value)),
+                Encoded::at(ch::ANNOTATIONS, t, ch::hazard_annotations(&m.value)),
+            ]
+        })?;
+        self.tap(
+            bus,
+            HYBRID_TRACKING_STATUS,
+            move |m: &Message<HybridTrackingStatus>| {
+                vec![Encoded::at(hybrid, m.stamp.as_nanos(), ch::json(&m.value))]
+            },
+        )?;
+        if !self.outputs_only {
+            self.tap(bus, DEPTH_FRAME, |m: &Message<DepthFrame>| {
+                let t = m.stamp.as_nanos();
+                vec![Encoded {
+                    sequence: Some(m.value.frame_index as u32),
+                    ..Encoded::at(ch::CAMERA_DEPTH, t, ch::depth_image(&m.value.image, t))
+                }]
+            })?;
+        }
+        Ok(())
+    }
+
+    fn tap<T: Send + Sync + 'static>(
+        &self,
+        bus: &Bus,
+        topic: &str,
+        encode: impl Fn(&Message<T>) -> Vec<Encoded> + Send + Sync + 'static,
+    ) -> Result<(), crate::bus::BusError> {
+        let Some(jobs) = self.jobs.clone() else {
+            return Ok(());
+        };
+        let encode = Arc::new(encode);
+        bus.tap::<T>(
+            topic,
+            Box::new(move |message: &Arc<Message<T>>| {
+                let (message, encode) = (message.clone(), encode.clone());
+                let _ = jobs.send(Work::Job(Box::new(move || encode(&message))));
+            }),
+        )
+    }
+
+    /// The end of one step of the loop: the replay's clock.
+    pub fn step(&self, record: StepRecord) {
+        if self.outputs_only {
+            return;
+        }
+        let t = ns(record.now_s);
+        self.send(Box::new(move || {
+            vec![Encoded::at(ch::STEP, t, ch::json(&record))]
+        }));
+    }
+
+    /// What the link received and sent during the step at `now_s`.
+    pub fn link(&self, now_s: f64, capture: LinkCapture) {
+        if capture == LinkCapture::default() {
+            return;
+        }
+        let t = ns(now_s);
+        let inputs = !self.outputs_only;
+        self.send(Box::new(move || {
+            let received = capture
+                .received
+                .iter()
+                .filter(|_| inputs)
+                .map(|incoming| {
+                    let batch = MavlinkBatch::from_incoming(incoming);
+                    Encoded::at(ch::MAVLINK_IN, t, ch::json(&batch))
+                });
+            let sent = capture.sent.iter().map(|(header, message)| {
+                Encoded::at(
+                    ch::MAVLINK_OUT,
+                    t,
+                    ch::json(&MavlinkRecord::new(header, message)),
+                )
+            });
+            received.chain(sent).collect()
+        }));
+    }
+
+    /// A camera frame the runner delivered at `now_s`, captured at `capture_s`.
+    pub fn frame(&self, now_s: f64, capture_s: f64, frame_index: u64, image: Arc<GrayImage>) {
+        if self.outputs_only {
+            return;
+        }
+        let (t, capture) = (ns(now_s), ns(capture_s));
+        self.send(Box::new(move || {
+            vec![Encoded {
+                publish_time_ns: capture,
+                sequence: Some(frame_index as u32),
+                ..Encoded::at(ch::CAMERA_IMAGE, t, ch::gray_image(&image, capture))
+            }]
+        }));
+    }
+
+    /// A mission event (phases, landing modes, faults).
+    pub fn event(&self, now_s: f64, text: String) {
+        let t = ns(now_s);
+        self.send(Box::new(move || {
+            vec![Encoded::at(ch::EVENTS, t, ch::log_message(t, &text))]
+        }));
+    }
+
+    /// A governor decision, with its reason.
+    pub fn governor(&self, decision: GovernorDecision) {
+        let t = ns(decision.time_s);
+        self.send(Box::new(move || {
+            vec![Encoded::at(ch::GOVERNOR, t, ch::json(&decision))]
+        }));
+    }
+
+    /// The level every task runs at, whenever one changes.
+    pub fn levels(&self, now_s: f64, levels: QosLevels) {
+        let t = ns(now_s);
+        self.send(Box::new(move || {
+            vec![Encoded::at(ch::QOS_LEVELS, t, ch::json(&levels))]
+        }));
+    }
+
+    /// A battery sample and what the companion draws by the model.
+    pub fn battery(&self, now_s: f64, estimate: BatteryEstimate) {
+        let t = ns(now_s);
+        self.send(Box::new(move || {
+            vec![Encoded::at(ch::BATTERY, t, ch::json(&estimate))]
+        }));
+    }
+
+    /// The tasks' statistics at the end of the run.
+    pub fn task_stats(&self, now_s: f64, stats: Vec<TaskStats>) {
+        let t = ns(now_s);
+        self.send(Box::new(move || {
+            vec![Encoded::at(ch::TASK_STATS, t, ch::json(&stats))]
+        }));
+    }
+
+    /// Writes what is queued, closes the file and says what it holds.
+    pub fn finish(mut self) -> Result<RecordingSummary, RecordError> {
+        self.close();
+        match self.thread.take().map(JoinHandle::join) {
+            Some(Ok(result)) => result,
+            Some(Err(_)) => Err(RecordError::WriterPanicked),
+            None => Ok(RecordingSummary::default()),
+        }
+    }
+}
+
+impl Recorder {
+    /// Tells the writer thread to write what is queued and close the file.
+    fn close(&mut self) {
+        if let Some(jobs) = self.jobs.take() {
+            let _ = jobs.send(Work::Finish);
+        }
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        self.close();
+        if let Some(thread) = self.thread.take() {
+            if let Ok(Err(error)) = thread.join() {
+                tracing::warn!(%error, "the recording did not finish");
+            }
+        }
+    }
+}
+
+/// Every task's level (index) and knob value, by task name.
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct QosLevels {
+    pub tasks: BTreeMap<String, TaskLevelRecord>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TaskLevelRecord {
+    pub level: usize,
+    pub value: f64,
+}
+
+/// A battery reading and the companion's modelled draw at the levels in force.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BatteryEstimate {
+    pub telemetry: BatteryTelemetry,
+    pub companion_power_w: f64,
+}
+
+/// How long queued messages may wait before the chunk is closed: a crash loses at most this
+/// much of the flight.
+const FLUSH_PERIOD: Duration = Duration::from_secs(1);
+
+fn write_loop(
+    jobs: mpsc::Receiver<Work>,
+    mut writer: McapSink,
+    mut live: Option<LiveServer>,
+) -> Result<RecordingSummary, RecordError> {
+    let mut last_flush = Instant::now();
+    loop {
+        match jobs.recv_timeout(FLUSH_PERIOD) {
+            Ok(Work::Job(job)) => {
+                for message in job() {
+                    if let Some(live) = &mut live {
+                        live.log(&message);
+                    }
+                    writer.write(&message)?;
+                }
+            }
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+            Ok(Work::Finish) | Err(mpsc::RecvTimeoutError::Disconnected) => break,
+        }
+        if last_flush.elapsed() >= FLUSH_PERIOD {
+            writer.flush()?;
+            last_flush = Instant::now();
+        }
+    }
+    if let Some(live) = live {
+        live.stop();
+    }
+    writer.finish()
+}
+
+/// Where the MCAP bytes go.
+enum Output {
+    File(BufWriter<std::fs::File>),
+    Memory(Cursor<Vec<u8>>),
+    /// Live only.
+    None,
+}
+
+impl Write for Output {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        match self {
+            Output::File(f) => f.write(buf),
+            Output::Memory(m) => m.write(buf),
+            Output::None => Ok(buf.len()),
+        }
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        match self {
+            Output::File(f) => f.flush(),
+            Output::Memory(m) => m.flush(),
+            Output::None => Ok(()),
+        }
+    }
+}
+
+impl Seek for Output {
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        match self {
+            Output::File(f) => f.seek(pos),
+            Output::Memory(m) => m.seek(pos),
+            Output::None => Ok(0),
+        }
+    }
+}
+
+/// The MCAP writer with its channels.
+struct McapSink {
+    writer: Option<mcap::Writer<Output>>,
+    path: Option<PathBuf>,
+    channel_ids: HashMap<&'static str, u16>,
+    sequences: HashMap<&'static str, u32>,
+    counts: BTreeMap<String, u64>,
+}
+
+impl McapSink {
+    fn new(output: Output, path: Option<PathBuf>) -> Result<Self, RecordError> {
+        let writer = match output {
+            Output::None => None,
+            output => Some(
+                mcap::WriteOptions::new()
+                    .profile("qosrt")
+                    .library(concat!("qosrt ", env!("CARGO_PKG_VERSION")))
+                    .compression(Some(mcap::Compression::Zstd))
+                    .compression_level(1)
+                    // Compression on this thread: the mission's cores stay with the tasks.
+                    .compression_threads(0)
+                    .create(output)
+                    .map_err(RecordError::Mcap)?,
+            ),
+        };
+        Ok(Self {
+            writer,
+            path,
+            channel_ids: HashMap::new(),
+            sequences: HashMap::new(),
+            counts: BTreeMap::new(),
+        })
+    }
+
+    /// The run's header (metadata) and the config files it flew (attachments).
+    fn header(
+        &mut self,
+        header: &RecordingHeader,
+        config_files: &[ConfigFile],
+    ) -> Result<(), RecordError> {
+        let Some(writer) = &mut self.writer else {
+            return Ok(());
+        };
+        let json = serde_json::to_string(header).expect("the header serialises");
+        writer
+            .write_metadata(&mcap::records::Metadata {
+                name: HEADER_METADATA.into(),
+                metadata: BTreeMap::from([("header".to_string(), json)]),
+            })
+            .map_err(RecordError::Mcap)?;
+        for file in config_files {
+            writer
+                .attach(&mcap::Attachment {
+                    log_time: 0,
+                    create_time: 0,
+                    name: file.path.clone(),
+                    media_type: "application/toml".into(),
+                    data: std::borrow::Cow::Borrowed(&file.data),
+                })
+                .map_err(RecordError::Mcap)?;
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, message: &Encoded) -> Result<(), RecordError> {
+        let topic = message.spec.topic;
+        let count = self.counts.entry(topic.to_string()).or_default();
+        *count += 1;
+        let Some(writer) = &mut self.writer else {
+            return Ok(());
+        };
+        let channel_id = match self.channel_ids.get(topic) {
+            Some(&id) => id,
+            None => {
+                let schema = message.spec.schema();
+                let schema_id = writer
+                    .add_schema(&schema.name, &schema.encoding, &schema.data)
+                    .map_err(RecordError::Mcap)?;
+                let id = writer
+                    .add_channel(
+                        schema_id,
+                        topic,
+                        message.spec.message_encoding(),
+                        &BTreeMap::new(),
+                    )
+                    .map_err(RecordError::Mcap)?;
+                self.channel_ids.insert(topic, id);
+                id
+            }
+        };
+        let next = self.sequences.entry(topic).or_default();
+        *next += 1;
+        writer
+            .write_to_known_channel(
+                &mcap::records::MessageHeader {
+                    channel_id,
+                    sequence: message.sequence.unwrap_or(*next),
+                    log_time: message.log_time_ns,
+                    publish_time: message.publish_time_ns,
+                },
+                &message.data,
+            )
+            .map_err(RecordError::Mcap)
+    }
+
+    /// Closes the chunk: everything so far stays readable if the process dies.
+    fn flush(&mut self) -> Result<(), RecordError> {
+        match &mut self.writer {
+            Some(writer) => writer.flush().map_err(RecordError::Mcap),
+            None => Ok(()),
+        }
+    }
+
+    fn finish(mut self) -> Result<RecordingSummary, RecordError> {
+        let mut summary = RecordingSummary {
+            file: self.path.clone(),
+            messages: std::mem::take(&mut self.counts),
+            ..RecordingSummary::default()
+        };
+        if let Some(mut writer) = self.writer.take() {
+            writer.finish().map_err(RecordError::Mcap)?;
+            match writer.into_inner() {
+                Output::File(file) => {
+                    let file = file
+                        .into_inner()
+                        .map_err(|e| RecordError::Io(e.into_error()))?;
+                    summary.bytes = file.metadata().map_err(RecordError::Io)?.len();
+                }
+                Output::Memory(memory) => {
+                    let data = memory.into_inner();
+                    summary.bytes = data.len() as u64;
+                    summary.data = Some(data);
+                }
+                Output::None => {}
+            }
+        }
+        Ok(summary)
+    }
+}
+
+/// The channels served live over the Foxglove WebSocket protocol.
+struct LiveServer {
+    context: Arc<foxglove::Context>,
+    handle: foxglove::WebSocketServerHandle,
+    channels: HashMap<&'static str, Arc<foxglove::RawChannel>>,
+    port: u16,
+}
+
+impl LiveServer {
+    fn start(address: SocketAddr) -> Result<Self, RecordError> {
+        let context = foxglove::Context::new();
+        let handle = foxglove::WebSocketServer::new()
+            .name("qosrt")
+            .bind(address.ip().to_string(), address.port())
+            .context(&context)
+            .start_blocking()
+            .map_err(|source| RecordError::Live {
+                address,
+                source: Box::new(source),
+            })?;
+        let port = handle.port();
+        let mut live = Self {
+            context,
+            handle,
+            channels: HashMap::new(),
+            port,
+        };
+        // Every channel is advertised from the start, so a viewer can subscribe before the
+        // first message of each.
+        for spec in ch::all_channels() {
+            live.channel(spec);
+        }
+        Ok(live)
+    }
+
+    fn channel(&mut self, spec: ChannelSpec) -> Option<Arc<foxglove::RawChannel>> {
+        if let Some(channel) = self.channels.get(spec.topic) {
+            return Some(channel.clone());
+        }
+        match foxglove::ChannelBuilder::new(spec.topic)
+            .context(&self.context)
+            .message_encoding(spec.message_encoding())
+            .schema(spec.schema())
+            .build_raw()
+        {
+            Ok(channel) => {
+                self.channels.insert(spec.topic, channel.clone());
+                Some(channel)
+            }
+            Err(error) => {
+                tracing::warn!(%error, topic = spec.topic, "live channel not served");
+                None
+            }
+        }
+    }
+
+    fn log(&mut self, message: &Encoded) {
+        if let Some(channel) = self.channel(message.spec) {
+            channel.log_with_meta(
+                &message.data,
+                foxglove::PartialMetadata {
+                    log_time: Some(message.log_time_ns),
+                },
+            );
+        }
+    }
+
+    fn stop(self) {
+        self.handle.stop().wait_blocking();
+    }
+}

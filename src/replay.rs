@@ -1,0 +1,177 @@
+//! `qosrt replay F.mcap`: the recorded mission's tasks re-run on its recorded frames, telemetry
+//! and clock, and where their outputs differ from the recording; and the `--record` /
+//! `--foxglove` options `qosrt sim` and `qosrt run` share.
+
+use crate::check::{report_failure, EXIT_INVALID_CONFIG};
+use runtime::config::load_file;
+use runtime::energy::{load_mission_model, MissionModel};
+use runtime::plugins::builtin_registry;
+use runtime::record::replay::read_recording_file;
+use runtime::record::{extract_config, replay, RecorderOptions, ReplayOptions, ReplayReport};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+/// Exit status when the replay's outputs differ from the recording's.
+pub const EXIT_OUTPUTS_DIFFER: u8 = 5;
+
+/// Recording and live view, for `qosrt sim` and `qosrt run`.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct RecordArgs {
+    /// Record the mission to this MCAP file (frames, telemetry, every topic and decision, the
+    /// config): open it in Foxglove, or re-run it with `qosrt replay`.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// Serve the same channels live over Foxglove's WebSocket protocol (default address
+    /// 127.0.0.1:8765; in Foxglove: Open connection → Foxglove WebSocket → ws://ADDR).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove: Option<SocketAddr>,
+}
+
+impl RecordArgs {
+    /// Where to record, if anywhere.
+    pub fn options(&self) -> Option<RecorderOptions> {
+        (self.record.is_some() || self.foxglove.is_some()).then(|| RecorderOptions {
+            file: self.record.clone(),
+            live: self.foxglove,
+            ..RecorderOptions::default()
+        })
+    }
+}
+
+/// `qosrt replay`'s arguments.
+#[derive(clap::Args)]
+pub struct ReplayArgs {
+    /// The recording (`qosrt sim --record` or `qosrt run --record`).
+    pub file: PathBuf,
+    /// Re-run with this config instead of the one the recording flew.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Hold a task at one of its levels, by knob value, instead of the recording's: --fix
+    /// detection=2 (repeatable).
+    #[arg(long = "fix", value_name = "TASK=VALUE", value_parser = crate::sim::parse_fixed_level)]
+    pub fixed_levels: Vec<(String, f64)>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(args: &ReplayArgs) -> ExitCode {
+    let recording = match read_recording_file(&args.file) {
+        Ok(recording) => recording,
+        Err(error) => {
+            eprintln!("error: {}: {error}", args.file.display());
+            return ExitCode::from(EXIT_INVALID_CONFIG);
+        }
+    };
+    let registry = match builtin_registry() {
+        Ok(registry) => registry,
+        Err(error) => {
+            eprintln!("error: {error}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let model = match &args.config {
+        Some(path) => load_model(path, args.json),
+        None => {
+            // The config the recording flew, as it was, with its profiles beside it.
+            let dir = std::env::temp_dir().join(format!("qosrt-replay-{}", std::process::id()));
+            let model = extract_config(
+                &recording.config_files,
+                &recording.header.config_file,
+                &dir,
+            )
+            .map_err(|error| eprintln!("error: {}: {error}", args.file.display()))
+            .ok()
+            .and_then(|path| load_model(&path, args.json));
+            let _ = std::fs::remove_dir_all(&dir);
+            model
+        }
+    };
+    let Some(model) = model else {
+        return ExitCode::from(EXIT_INVALID_CONFIG);
+    };
+    let options = ReplayOptions {
+        fixed_levels: (!args.fixed_levels.is_empty()).then(|| args.fixed_levels.clone()),
+    };
+    let report = match replay(&recording, model, &registry, &options) {
+        Ok(report) => report,
+        Err(error) => {
+            eprintln!("error: {error}");
+            return ExitCode::FAILURE;
+        }
+    };
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&report).expect("the report serialises")
+        );
+    } else {
+        print!("{}", describe(&report, &args.file));
+    }
+    if report.identical() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(EXIT_OUTPUTS_DIFFER)
+    }
+}
+
+fn load_model(path: &Path, json: bool) -> Option<MissionModel> {
+    let loaded = load_file(path, &runtime::catalog::PluginCatalog::builtin())
+        .map_err(|failure| report_failure(&failure, json))
+        .ok()?;
+    load_mission_model(&loaded)
+        .map_err(|reports| {
+            for report in &reports {
+                report_failure(report, json);
+            }
+        })
+        .ok()
+}
+
+/// The report, for people.
+pub fn describe(report: &ReplayReport, file: &Path) -> String {
+    let mut out = format!(
+        "replayed {} of {} steps of {} (up to t = {:.2} s)\n",
+        report.steps_replayed,
+        report.steps_recorded,
+        file.display(),
+        report.replayed_until_s
+    );
+    if let Some(why) = &report.recording_truncated {
+        out += &format!(
+            "the recording ends early (cut off mid-flight?): {why}; replayed up to its last complete step\n"
+        );
+    }
+    if let Some(why) = &report.stopped {
+        out += &format!("the replay stopped {why}\n");
+    }
+    out += &format!(
+        "{:<32} {:>9} {:>9} {:>9}  first difference\n",
+        "output channel", "recorded", "replayed", "differ"
+    );
+    for channel in &report.channels {
+        let first = match channel.first_difference_s {
+            None => "—".to_string(),
+            Some(first_s) => format!(
+                "t = {first_s:.2} s (last t = {:.2} s): {}",
+                channel.last_difference_s.unwrap_or(first_s),
+                channel.first_fields.join("; ")
+            ),
+        };
+        out += &format!(
+            "{:<32} {:>9} {:>9} {:>9}  {first}\n",
+            channel.topic, channel.recorded, channel.replayed, channel.differing
+        );
+    }
+    let differing = report.channels.iter().filter(|c| !c.identical()).count();
+    out += &if differing == 0 {
+        "no difference: every output as recorded, bit for bit\n".to_string()
+    } else {
+        format!(
+            "outputs differ on {differing} of {} channels\n",
+            report.channels.len()
+        )
+    };
+    out
+}
