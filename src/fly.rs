@@ -181,7 +181,12 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
         );
         let recorder = Recorder::start(&options, &header, &files)?;
         if let Some(port) = recorder.live_port() {
-            tracing::info!("Foxglove: open ws://{}:{port}", options.live.map_or("127.0.0.1".into(), |a| a.ip().to_string()));
+            tracing::info!(
+                "Foxglove: open ws://{}:{port}",
+                options
+                    .live
+                    .map_or("127.0.0.1".into(), |a| a.ip().to_string())
+            );
         }
         runner.record(recorder)?;
     }

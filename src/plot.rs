@@ -256,11 +256,13 @@ fn draw_qos<DB: DrawingBackend>(
             .map(|s| (s.time_s, 100.0 * s.battery_soc)),
         RED.stroke_width(2),
     ))?;
-    let tasks: Vec<&str> = outcome.qos_track[0]
-        .levels
-        .iter()
-        .map(|(task, _, _)| task.as_str())
-        .collect();
+    // Every task that ever had a level (a task joins when its first phase is planned).
+    let mut tasks: Vec<&str> = Vec::new();
+    for (task, _, _) in outcome.qos_track.iter().flat_map(|s| &s.levels) {
+        if !tasks.contains(&task.as_str()) {
+            tasks.push(task);
+        }
+    }
     let top_level = outcome
         .qos_track
         .iter()

@@ -76,14 +76,11 @@ pub fn run(args: &ReplayArgs) -> ExitCode {
         None => {
             // The config the recording flew, as it was, with its profiles beside it.
             let dir = std::env::temp_dir().join(format!("qosrt-replay-{}", std::process::id()));
-            let model = extract_config(
-                &recording.config_files,
-                &recording.header.config_file,
-                &dir,
-            )
-            .map_err(|error| eprintln!("error: {}: {error}", args.file.display()))
-            .ok()
-            .and_then(|path| load_model(&path, args.json));
+            let model =
+                extract_config(&recording.config_files, &recording.header.config_file, &dir)
+                    .map_err(|error| eprintln!("error: {}: {error}", args.file.display()))
+                    .ok()
+                    .and_then(|path| load_model(&path, args.json));
             let _ = std::fs::remove_dir_all(&dir);
             model
         }

@@ -6,11 +6,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 use runtime::config::load_file;
 use runtime::energy::{load_mission_model, MissionModel};
 use runtime::plugins::builtin_registry;
+use runtime::record::ConfigFile;
 use runtime::registry::PluginRegistry;
 use sim::outcome::{SimOutcome, SimSummary};
 use sim::realism::Realism;
 use sim::tractor::PathKind;
-use runtime::record::ConfigFile;
 use sitl::mission::{simulate, Faults, SimOptions, SimRecording, WindKind};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -322,7 +322,9 @@ pub fn run(args: &SimArgs) -> ExitCode {
 
 /// Where the QoS plot goes beside `--svg PATH`: `PATH` with `-qos` before its extension.
 fn qos_svg_path(svg: &Path) -> PathBuf {
-    let stem = svg.file_stem().map_or("mission".into(), |s| s.to_string_lossy());
+    let stem = svg
+        .file_stem()
+        .map_or("mission".into(), |s| s.to_string_lossy());
     svg.with_file_name(format!("{stem}-qos.svg"))
 }
 

@@ -10,10 +10,20 @@ fn a_recorded_simulation_replays_with_no_difference_and_a_slower_detector_differ
     let file = dir.path().join("m.mcap");
     let file_arg = file.to_str().unwrap();
     let sim = qosrt(&[
-        "sim", "--tracking-s", "3", "--seed", "2", "--record", file_arg,
+        "sim",
+        "--tracking-s",
+        "3",
+        "--seed",
+        "2",
+        "--record",
+        file_arg,
     ]);
     assert!(sim.status.success(), "{}", output_text(&sim));
-    assert!(output_text(&sim).contains("recorded "), "{}", output_text(&sim));
+    assert!(
+        output_text(&sim).contains("recorded "),
+        "{}",
+        output_text(&sim)
+    );
 
     let same = qosrt(&["replay", file_arg]);
     let text = output_text(&same);
@@ -30,7 +40,10 @@ fn a_recorded_simulation_replays_with_no_difference_and_a_slower_detector_differ
         .find(|c| c["topic"] == "/bus/vision/landing_marker")
         .expect("the detector's channel");
     assert!(marker["differing"].as_u64().unwrap() > 0, "{marker}");
-    assert!(marker["first_difference_s"].as_f64().unwrap() > 0.0, "{marker}");
+    assert!(
+        marker["first_difference_s"].as_f64().unwrap() > 0.0,
+        "{marker}"
+    );
 
     // Cut off mid-flight: replayed up to its last complete chunk, and said so.
     let bytes = std::fs::read(&file).unwrap();
@@ -53,7 +66,10 @@ fn a_file_that_is_not_a_recording_is_named() {
         let out = qosrt(&["replay", path.to_str().unwrap()]);
         let text = output_text(&out);
         assert_eq!(out.status.code(), Some(2), "{text}");
-        assert!(text.contains(expected) && !text.contains("panicked"), "{text}");
+        assert!(
+            text.contains(expected) && !text.contains("panicked"),
+            "{text}"
+        );
     }
     // Recording is of one mission.
     let out = qosrt(&["sim", "--runs", "2", "--record", garbage.to_str().unwrap()]);

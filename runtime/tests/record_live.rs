@@ -50,12 +50,18 @@ fn a_foxglove_client_sees_the_channels_and_receives_what_is_logged() {
         "foxglove.sdk.v1"
     );
     if let MaybeTlsStream::Plain(tcp) = socket.get_mut() {
-        tcp.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
+        tcp.set_read_timeout(Some(Duration::from_millis(50)))
+            .unwrap();
     }
     let deadline = Instant::now() + Duration::from_secs(20);
     let read = |socket: &mut tungstenite::WebSocket<_>| match socket.read() {
         Ok(message) => Some(message),
-        Err(tungstenite::Error::Io(e)) if e.kind() == std::io::ErrorKind::WouldBlock || e.kind() == std::io::ErrorKind::TimedOut => None,
+        Err(tungstenite::Error::Io(e))
+            if e.kind() == std::io::ErrorKind::WouldBlock
+                || e.kind() == std::io::ErrorKind::TimedOut =>
+        {
+            None
+        }
         Err(error) => panic!("{error}"),
     };
     // The advertised channels, by topic: (id, encoding, schema name).
@@ -80,7 +86,10 @@ fn a_foxglove_client_sees_the_channels_and_receives_what_is_logged() {
         }
     }
     let (events_id, encoding, schema) = advertised["/qosrt/events"].clone();
-    assert_eq!((encoding.as_str(), schema.as_str()), ("protobuf", "foxglove.Log"));
+    assert_eq!(
+        (encoding.as_str(), schema.as_str()),
+        ("protobuf", "foxglove.Log")
+    );
     assert_eq!(advertised["/camera/image"].2, "foxglove.RawImage");
     assert_eq!(advertised["/bus/landing/setpoint"].1, "json");
     let subscribe = serde_json::json!({

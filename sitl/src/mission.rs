@@ -20,7 +20,7 @@ use runtime::link::{LinkConfig, MavlinkLink};
 use runtime::mission::runner::LOCKSTEP_TIMEOUT;
 use runtime::mission::{MissionEvent, MissionPlan, MissionRunner, RunnerError, RunnerOptions};
 use runtime::record::{
-    ConfigFile, Recorder, RecorderOptions, RecordError, RecordingHeader, RecordingSource,
+    ConfigFile, RecordError, Recorder, RecorderOptions, RecordingHeader, RecordingSource,
 };
 use runtime::registry::PluginRegistry;
 use runtime::scheduler::{Pinning, RealTimeOptions, SchedulerBuilder, TaskScheduler};
@@ -610,7 +610,10 @@ pub fn simulate(
                 .into_iter()
                 .map(|(task, l)| (task, l.level, l.value))
                 .collect();
-            if qos_track.last().is_none_or(|last: &QosSample| last.levels != levels) {
+            if qos_track
+                .last()
+                .is_none_or(|last: &QosSample| last.levels != levels)
+            {
                 qos_track.push(QosSample { time_s, levels });
             }
         }

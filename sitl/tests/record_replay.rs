@@ -23,7 +23,10 @@ fn config_path() -> PathBuf {
 
 fn reference() -> (MissionModel, PluginRegistry) {
     let loaded = load_file(&config_path(), &runtime::catalog::PluginCatalog::builtin()).unwrap();
-    (load_mission_model(&loaded).unwrap(), builtin_registry().unwrap())
+    (
+        load_mission_model(&loaded).unwrap(),
+        builtin_registry().unwrap(),
+    )
 }
 
 struct Recorded {
@@ -108,9 +111,9 @@ fn a_recorded_mission_replays_bit_for_bit() {
         .events
         .iter()
         .any(|(_, e)| e == "touchdown");
-    let logged = recording.topic("/qosrt/events").any(|m| {
-        String::from_utf8_lossy(&m.data).contains("touchdown")
-    });
+    let logged = recording
+        .topic("/qosrt/events")
+        .any(|m| String::from_utf8_lossy(&m.data).contains("touchdown"));
     assert_eq!(touchdown, logged);
 }
 
@@ -139,25 +142,40 @@ fn a_replay_with_a_slower_detector_says_where_its_outputs_part() {
         .find(|m| String::from_utf8_lossy(&m.data).contains("\"tracking\""))
         .map(|m| m.log_time_ns as f64 * 1e-9)
         .expect("the tracking phase was recorded");
-    for topic in ["/bus/vision/landing_marker", "/bus/landing/setpoint", "/mavlink/out"] {
+    for topic in [
+        "/bus/vision/landing_marker",
+        "/bus/landing/setpoint",
+        "/mavlink/out",
+    ] {
         let c = channel(&report, topic);
         let first_s = c.first_difference_s.unwrap_or_else(|| panic!("{c:?}"));
-        assert!(first_s >= tracking_s - 1e-9, "{topic} differs at {first_s} s, before {tracking_s} s");
+        assert!(
+            first_s >= tracking_s - 1e-9,
+            "{topic} differs at {first_s} s, before {tracking_s} s"
+        );
         assert!(!c.first_fields.is_empty(), "{c:?}");
     }
     // The QoS levels say so from the start.
     let levels = channel(&report, "/qosrt/qos_levels");
-    assert!(levels.first_fields.iter().any(|f| f.contains("detection")), "{levels:?}");
+    assert!(
+        levels.first_fields.iter().any(|f| f.contains("detection")),
+        "{levels:?}"
+    );
     // What the detector does not feed is untouched before the tracking phase: the battery.
     let battery = channel(&report, "/qosrt/battery");
-    assert!(battery.first_difference_s.is_none_or(|t| t >= tracking_s), "{battery:?}");
+    assert!(
+        battery.first_difference_s.is_none_or(|t| t >= tracking_s),
+        "{battery:?}"
+    );
 }
 
 #[test]
 fn the_file_reads_in_the_mcap_crates_indexed_reader_with_foxglove_schemas() {
     let recorded = recorded();
     let bytes = std::fs::read(&recorded.path).unwrap();
-    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary section");
+    let summary = mcap::Summary::read(&bytes)
+        .unwrap()
+        .expect("a summary section");
     let channels: BTreeMap<&str, (&str, &str, &str)> = summary
         .channels
         .values()
@@ -236,13 +254,18 @@ fn a_file_cut_off_mid_flight_replays_up_to_its_last_complete_chunk() {
     assert!(!partial.messages.is_empty());
     assert!(partial.messages.len() < whole.messages.len());
     // What it kept is the whole file's beginning, message for message.
-    assert_eq!(partial.messages[..], whole.messages[..partial.messages.len()]);
+    assert_eq!(
+        partial.messages[..],
+        whole.messages[..partial.messages.len()]
+    );
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("cut.mcap");
     std::fs::write(&path, cut).unwrap();
     let report = replay_with(&path, &ReplayOptions::default());
     assert!(report.recording_truncated.is_some());
-    assert!(report.steps_replayed > 0 && report.steps_replayed < whole.topic("/qosrt/step").count());
+    assert!(
+        report.steps_replayed > 0 && report.steps_replayed < whole.topic("/qosrt/step").count()
+    );
     assert!(report.replayed_until_s < whole.end_s());
     // Up to where it ends, the outputs are the recording's.
     assert!(report.identical(), "{:#?}", report.channels);

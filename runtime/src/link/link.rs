@@ -193,7 +193,10 @@ impl MavlinkLink {
 
     /// What was received and sent since the last call (nothing unless capturing).
     pub fn take_capture(&mut self) -> LinkCapture {
-        self.capture.as_mut().map(std::mem::take).unwrap_or_default()
+        self.capture
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
     }
 
     /// `udpin` on 127.0.0.1 with an OS-chosen port, for the simulator: give

@@ -99,9 +99,7 @@ impl ChannelSpec {
                 fg::ImageAnnotations::get_schema()
             }
             Encoding::Foxglove(FoxgloveSchema::PoseInFrame) => fg::PoseInFrame::get_schema(),
-            Encoding::Foxglove(FoxgloveSchema::FrameTransform) => {
-                fg::FrameTransform::get_schema()
-            }
+            Encoding::Foxglove(FoxgloveSchema::FrameTransform) => fg::FrameTransform::get_schema(),
             Encoding::Foxglove(FoxgloveSchema::Log) => fg::Log::get_schema(),
         };
         schema.expect("Foxglove's well-known messages have schemas")
@@ -139,11 +137,7 @@ pub const TASK_STATS: ChannelSpec =
 
 /// The bus topics a recording keeps, each as `/bus/<topic>`: every message published on them.
 pub const BUS_TOPICS: [ChannelSpec; 7] = [
-    ChannelSpec::json(
-        "/bus/vehicle/state",
-        "qosrt.VehicleState",
-        Role::Output,
-    ),
+    ChannelSpec::json("/bus/vehicle/state", "qosrt.VehicleState", Role::Output),
     ChannelSpec::json("/bus/mission/phase", "qosrt.MissionPhase", Role::Output),
     ChannelSpec::json(
         "/bus/vision/landing_marker",
@@ -429,7 +423,13 @@ pub fn marker_annotations(capture_ns: u64, marker: &MarkerObservation) -> Vec<u8
             outline_color: Some(MARKER_COLOUR),
             metadata: Vec::new(),
         });
-        annotations.texts.push(text(stamp, u, v - diameter / 2.0, "pad".into(), MARKER_COLOUR));
+        annotations.texts.push(text(
+            stamp,
+            u,
+            v - diameter / 2.0,
+            "pad".into(),
+            MARKER_COLOUR,
+        ));
     }
     annotations.encode_to_vec()
 }
@@ -452,10 +452,7 @@ pub fn hazard_annotations(report: &HazardReport) -> Vec<u8> {
         annotations.points.push(fg::PointsAnnotation {
             timestamp: stamp,
             r#type: fg::points_annotation::Type::LineLoop as i32,
-            points: corners
-                .iter()
-                .map(|&(x, y)| fg::Point2 { x, y })
-                .collect(),
+            points: corners.iter().map(|&(x, y)| fg::Point2 { x, y }).collect(),
             outline_color: Some(HAZARD_COLOUR),
             outline_colors: Vec::new(),
             fill_color: None,
@@ -474,7 +471,13 @@ pub fn hazard_annotations(report: &HazardReport) -> Vec<u8> {
     annotations.encode_to_vec()
 }
 
-fn text(stamp: Option<fg::Timestamp>, x: f64, y: f64, text: String, colour: fg::Color) -> fg::TextAnnotation {
+fn text(
+    stamp: Option<fg::Timestamp>,
+    x: f64,
+    y: f64,
+    text: String,
+    colour: fg::Color,
+) -> fg::TextAnnotation {
     fg::TextAnnotation {
         timestamp: stamp,
         position: Some(fg::Point2 { x, y }),

@@ -11,7 +11,7 @@ pub mod reader;
 pub mod recorder;
 pub mod replay;
 
-pub use reader::{read_recording, Recording, RecordedMessage};
+pub use reader::{read_recording, RecordedMessage, Recording};
 pub use recorder::{Recorder, RecorderOptions, RecordingSummary};
 pub use replay::{replay, ChannelDiff, ReplayError, ReplayOptions, ReplayReport};
 
@@ -178,7 +178,12 @@ pub fn extract_config(
     };
     for file in files {
         let relative = Path::new(&file.path);
-        if relative.is_absolute() || relative.components().skip(climbs(&file.path)).any(|c| matches!(c, std::path::Component::ParentDir)) {
+        if relative.is_absolute()
+            || relative
+                .components()
+                .skip(climbs(&file.path))
+                .any(|c| matches!(c, std::path::Component::ParentDir))
+        {
             return Err(RecordError::NotARecording(format!(
                 "its config file {:?} is not a relative path",
                 file.path
@@ -226,7 +231,11 @@ mod tests {
             b"tracking"
         );
         // Nothing is written outside the folder it was given.
-        assert!(base.join("../../shared/tracking.toml").canonicalize().unwrap().starts_with(dir.path().canonicalize().unwrap()));
+        assert!(base
+            .join("../../shared/tracking.toml")
+            .canonicalize()
+            .unwrap()
+            .starts_with(dir.path().canonicalize().unwrap()));
         let escaping = [ConfigFile {
             path: "profiles/../../x.toml".into(),
             data: Vec::new(),

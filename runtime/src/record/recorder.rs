@@ -165,19 +165,35 @@ impl Recorder {
         self.tap(bus, MISSION_PHASE, move |m: &Message<MissionPhase>| {
             vec![Encoded::at(phase, m.stamp.as_nanos(), ch::json(&m.value))]
         })?;
-        self.tap(bus, LANDING_MARKER, move |m: &Message<MarkerObservation>| {
-            let t = m.stamp.as_nanos();
-            vec![
-                Encoded::at(marker, t, ch::json(&m.value)),
-                Encoded::at(ch::ANNOTATIONS, t, ch::marker_annotations(t, &m.value)),
-            ]
-        })?;
+        self.tap(
+            bus,
+            LANDING_MARKER,
+            move |m: &Message<MarkerObservation>| {
+                let t = m.stamp.as_nanos();
+                vec![
+                    Encoded::at(marker, t, ch::json(&m.value)),
+                    Encoded::at(ch::ANNOTATIONS, t, ch::marker_annotations(t, &m.value)),
+                ]
+            },
+        )?;
         self.tap(bus, RELATIVE_STATE, move |m: &Message<RelativeState>| {
-            vec![Encoded::at(relative, m.stamp.as_nanos(), ch::json(&m.value))]
+            vec![Encoded::at(
+                relative,
+                m.stamp.as_nanos(),
+                ch::json(&m.value),
+            )]
         })?;
-        self.tap(bus, LANDING_SETPOINT, move |m: &Message<LandingSetpoint>| {
-            vec![Encoded::at(setpoint, m.stamp.as_nanos(), ch::json(&m.value))]
-        })?;
+        self.tap(
+            bus,
+            LANDING_SETPOINT,
+            move |m: &Message<LandingSetpoint>| {
+                vec![Encoded::at(
+                    setpoint,
+                    m.stamp.as_nanos(),
+                    ch::json(&m.value),
+                )]
+            },
+        )?;
         self.tap(bus, HAZARDS, move |m: &Message<HazardReport>| {
             let t = m.stamp.as_nanos();
             vec![
@@ -242,14 +258,10 @@ impl Recorder {
         let t = ns(now_s);
         let inputs = !self.outputs_only;
         self.send(Box::new(move || {
-            let received = capture
-                .received
-                .iter()
-                .filter(|_| inputs)
-                .map(|incoming| {
-                    let batch = MavlinkBatch::from_incoming(incoming);
-                    Encoded::at(ch::MAVLINK_IN, t, ch::json(&batch))
-                });
+            let received = capture.received.iter().filter(|_| inputs).map(|incoming| {
+                let batch = MavlinkBatch::from_incoming(incoming);
+                Encoded::at(ch::MAVLINK_IN, t, ch::json(&batch))
+            });
             let sent = capture.sent.iter().map(|(header, message)| {
                 Encoded::at(
                     ch::MAVLINK_OUT,

@@ -146,13 +146,12 @@ pub fn replay(
     )?;
     runner.record(recorder).map_err(ReplayError::Setup)?;
 
-    let bad = |topic: &'static str, message: &RecordedMessage, why: String| {
-        ReplayError::BadMessage {
+    let bad =
+        |topic: &'static str, message: &RecordedMessage, why: String| ReplayError::BadMessage {
             topic,
             time_s: message.log_time_ns as f64 * 1e-9,
             why,
-        }
-    };
+        };
     let steps_recorded = recording.topic(ch::STEP.topic).count();
     let mut steps_replayed = 0;
     let mut replayed_until_ns = 0;
@@ -244,7 +243,11 @@ pub fn compare(recorded: &Recording, replayed: &Recording, until_ns: u64) -> Vec
         .collect()
 }
 
-fn diff_channel(topic: &str, recorded: &[RecordedMessage], replayed: &[RecordedMessage]) -> ChannelDiff {
+fn diff_channel(
+    topic: &str,
+    recorded: &[RecordedMessage],
+    replayed: &[RecordedMessage],
+) -> ChannelDiff {
     let mut diff = ChannelDiff {
         topic: topic.to_string(),
         recorded: recorded.len(),
@@ -374,13 +377,33 @@ mod tests {
     fn a_difference_is_placed_in_time_and_named_by_field() {
         let topic = "/bus/landing/setpoint";
         let recorded = [
-            message(topic, 1_000_000_000, r#"{"mode":"Descend","v":[0.5,0.0,1.0]}"#),
-            message(topic, 2_000_000_000, r#"{"mode":"Descend","v":[0.5,0.1,1.0]}"#),
-            message(topic, 3_000_000_000, r#"{"mode":"Final","v":[0.0,0.0,2.0]}"#),
+            message(
+                topic,
+                1_000_000_000,
+                r#"{"mode":"Descend","v":[0.5,0.0,1.0]}"#,
+            ),
+            message(
+                topic,
+                2_000_000_000,
+                r#"{"mode":"Descend","v":[0.5,0.1,1.0]}"#,
+            ),
+            message(
+                topic,
+                3_000_000_000,
+                r#"{"mode":"Final","v":[0.0,0.0,2.0]}"#,
+            ),
         ];
         let replayed = [
-            message(topic, 1_000_000_000, r#"{"mode":"Descend","v":[0.5,0.0,1.0]}"#),
-            message(topic, 2_000_000_000, r#"{"mode":"Descend","v":[0.5,0.2,1.0]}"#),
+            message(
+                topic,
+                1_000_000_000,
+                r#"{"mode":"Descend","v":[0.5,0.0,1.0]}"#,
+            ),
+            message(
+                topic,
+                2_000_000_000,
+                r#"{"mode":"Descend","v":[0.5,0.2,1.0]}"#,
+            ),
         ];
         let diff = diff_channel(topic, &recorded, &replayed);
         assert_eq!((diff.recorded, diff.replayed, diff.differing), (3, 2, 2));
