@@ -171,51 +171,6 @@ fn draw_mission<DB: DrawingBackend>(
     Ok(())
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_svg_shows_frontier_budget_and_choice() {
-        let frontier = [(50.0, 1.0), (52.0, 3.0), (55.0, 4.0)];
-        let svg = frontier_svg(&FrontierPlot {
-            title: "test",
-            frontier: &frontier,
-            budget_wh: 53.0,
-            chosen: Some((52.0, 3.0)),
-        })
-        .unwrap();
-        assert!(svg.starts_with("<svg"));
-        assert!(svg.contains("Pareto frontier"));
-        assert!(svg.contains("energy budget"));
-        assert!(svg.contains("chosen plan"));
-        // one small circle per frontier point plus the chosen one and its legend marker
-        assert!(svg.matches("<circle").count() > frontier.len());
-    }
-
-    #[test]
-    fn the_mission_svg_draws_both_tracks_and_refuses_an_empty_one() {
-        let mut outcome = sim::outcome::SimOutcome::default();
-        assert!(mission_svg(&outcome).is_err());
-        outcome.track = (0..10)
-            .map(|i| sim::outcome::TrackSample {
-                time_s: i as f64,
-                vehicle_ne_m: [i as f64, 0.5],
-                altitude_m: 8.0,
-                tractor_ne_m: [i as f64, 0.0],
-                battery_soc: 1.0 - 0.01 * i as f64,
-            })
-            .collect();
-        let svg = mission_svg(&outcome).unwrap();
-        assert!(svg.contains("tractor") && svg.contains("vehicle"));
-        assert!(svg.contains("state of charge"));
-        assert!(
-            svg.matches("<polyline").count() >= 3,
-            "two tracks and the battery"
-        );
-    }
-}
-
 /// The simulated mission's QoS levels and battery over time: the battery's state of charge
 /// above, every task's level (0 = its lowest) below, as the governor set them.
 pub fn qos_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, String> {
@@ -312,4 +267,100 @@ fn draw_qos<DB: DrawingBackend>(
         .border_style(BLACK)
         .draw()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_svg_shows_frontier_budget_and_choice() {
+        let frontier = [(50.0, 1.0), (52.0, 3.0), (55.0, 4.0)];
+        let svg = frontier_svg(&FrontierPlot {
+            title: "test",
+            frontier: &frontier,
+            budget_wh: 53.0,
+            chosen: Some((52.0, 3.0)),
+        })
+        .unwrap();
+        assert!(svg.starts_with("<svg"));
+        assert!(svg.contains("Pareto frontier"));
+        assert!(svg.contains("energy budget"));
+        assert!(svg.contains("chosen plan"));
+        // one small circle per frontier point plus the chosen one and its legend marker
+        assert!(svg.matches("<circle").count() > frontier.len());
+    }
+
+    #[test]
+    fn the_mission_svg_draws_both_tracks_and_refuses_an_empty_one() {
+        let mut outcome = sim::outcome::SimOutcome::default();
+        assert!(mission_svg(&outcome).is_err());
+        outcome.track = (0..10)
+            .map(|i| sim::outcome::TrackSample {
+                time_s: i as f64,
+                vehicle_ne_m: [i as f64, 0.5],
+                altitude_m: 8.0,
+                tractor_ne_m: [i as f64, 0.0],
+                battery_soc: 1.0 - 0.01 * i as f64,
+            })
+            .collect();
+        let svg = mission_svg(&outcome).unwrap();
+        assert!(svg.contains("tractor") && svg.contains("vehicle"));
+        assert!(svg.contains("state of charge"));
+        assert!(
+            svg.matches("<polyline").count() >= 3,
+            "two tracks and the battery"
+        );
+    }
+
+    #[test]
+    fn the_qos_svg_draws_every_task_that_had_a_level_and_the_battery() {
+        let mut outcome = sim::outcome::SimOutcome {
+            mission_time_s: 10.0,
+            ..Default::default()
+        };
+        outcome.track = (0..10)
+            .map(|i| sim::outcome::TrackSample {
+                time_s: i as f64,
+                vehicle_ne_m: [0.0, 0.0],
+                altitude_m: 8.0,
+                tractor_ne_m: [0.0, 0.0],
+                battery_soc: 1.0 - 0.02 * i as f64,
+            })
+            .collect();
+        assert!(qos_svg(&outcome).is_err(), "no levels: nothing to plot");
+        let sample = |time_s: f64, levels: &[(&str, usize)]| sim::outcome::QosSample {
+            time_s,
+            levels: levels
+                .iter()
+                .map(|&(task, level)| (task.to_string(), level, level as f64))
+                .collect(),
+        };
+        // The detector joins at 2 s (its phase) and steps down at 5 s.
+        outcome.qos_track = vec![
+            sample(0.0, &[("hazard", 3)]),
+            sample(2.0, &[("hazard", 3), ("detection", 3)]),
+            sample(5.0, &[("hazard", 3), ("detection", 1)]),
+        ];
+        let svg = qos_svg(&outcome).unwrap();
+        for label in ["hazard", "detection", "state of charge", "QoS level"] {
+            assert!(svg.contains(label), "no {label}");
+        }
+        // The battery and one line per task are drawn 2 px wide (axes and legend marks, 1 px).
+        assert_eq!(svg.matches(r#"stroke-width="2""#).count(), 3);
+        // The detector's line steps: from (2 s, 3) along to (5 s, 3), down to (5 s, 1).
+        let detection = svg
+            .split("<polyline")
+            .filter(|line| line.contains(r#"stroke-width="2""#))
+            .nth(2)
+            .expect("the detector's line");
+        let points = detection
+            .split("points=\"")
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap();
+        assert_eq!(points.split_whitespace().count(), 4, "{points}");
+    }
 }

@@ -377,8 +377,8 @@ pub fn vehicle_pose(time_ns: u64, state: &VehicleState) -> Option<(Vec<u8>, Vec<
         timestamp: Some(timestamp(time_ns)),
         frame_id: "ned".into(),
         pose: Some(fg::Pose {
-            position: Some(translation.clone()),
-            orientation: Some(rotation.clone()),
+            position: Some(translation),
+            orientation: Some(rotation),
         }),
     };
     let transform = fg::FrameTransform {
