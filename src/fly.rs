@@ -170,7 +170,7 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
     )?;
     if let Some(options) = args.recording.options() {
         let files = ConfigFile::collect(&args.file, &loaded.config)?;
-        let header = RecordingHeader::new(
+        let mut header = RecordingHeader::new(
             RecordingSource::Flight,
             SchedulerBuilder::DEFAULT_SEED,
             plan,
@@ -179,6 +179,7 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
             has_camera,
             files[0].path.clone(),
         );
+        header.link_peer_known = runner.link().has_peer();
         let recorder = Recorder::start(&options, &header, &files)?;
         if let Some(port) = recorder.live_port() {
             tracing::info!(

@@ -97,13 +97,46 @@ fn without_control_px4_stays_disarmed() {
     let Some(px4) = Px4::start(2) else { return };
     let dir = tempfile::tempdir().unwrap();
     let config = short_mission(dir.path(), 4.0);
+    let recording = dir.path().join("observe.mcap");
     let child = qosrt_run(
         &config,
-        &["--mavlink", &px4.mavlink(), "--duration-s", "8", "--json"],
+        &[
+            "--mavlink",
+            &px4.mavlink(),
+            "--duration-s",
+            "8",
+            "--json",
+            "--record",
+            recording.to_str().unwrap(),
+        ],
     );
     let (report, stderr) = report_of(child, Duration::from_secs(30));
     assert_eq!(report["autopilot"], "PX4", "{stderr}");
     assert_eq!(report["control"], false);
+    // The flight's recording replays: every step, and what the link made of PX4's telemetry
+    // and sent back is what it did in flight.
+    let replayed = common::qosrt(&["replay", recording.to_str().unwrap(), "--json"]);
+    let replay: Value = serde_json::from_slice(&replayed.stdout)
+        .unwrap_or_else(|_| panic!("{}", common::output_text(&replayed)));
+    assert_eq!(
+        replay["steps_replayed"], replay["steps_recorded"],
+        "{replay:#}"
+    );
+    assert!(replay["stopped"].is_null(), "{replay:#}");
+    let channel = |topic: &str| {
+        replay["channels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["topic"] == topic)
+            .cloned()
+            .unwrap_or_else(|| panic!("no {topic}: {replay:#}"))
+    };
+    for topic in ["/bus/vehicle/state", "/mavlink/out"] {
+        let c = channel(topic);
+        assert!(c["recorded"].as_u64().unwrap() > 20, "{c}");
+        assert_eq!(c["differing"], 0, "{c}");
+    }
     let modes = modes(&report);
     assert!(!modes.is_empty());
     assert!(modes.iter().all(|(_, armed)| !armed), "{modes:?}");

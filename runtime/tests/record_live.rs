@@ -23,6 +23,7 @@ fn header() -> RecordingHeader {
         landing_target: false,
         camera: false,
         config_file: "qos.toml".into(),
+        link_peer_known: false,
     }
 }
 

@@ -326,7 +326,7 @@ pub fn simulate(
         other => SimError::Setup(other.to_string()),
     })?;
     if let Some(record) = &options.record {
-        let header = RecordingHeader::new(
+        let mut header = RecordingHeader::new(
             RecordingSource::Sim,
             options.seed,
             plan,
@@ -338,6 +338,7 @@ pub fn simulate(
                 .first()
                 .map_or_else(String::new, |f| f.path.clone()),
         );
+        header.link_peer_known = runner.link().has_peer();
         let recorder = Recorder::start(&record.recorder, &header, &record.config_files)?;
         if let Some(port) = recorder.live_port() {
             events.push((0.0, format!("serving Foxglove's WebSocket on port {port}")));

@@ -217,11 +217,22 @@ pub enum Transport {
 #[derive(Debug, Clone, Default)]
 pub struct ReplayFeed {
     batches: std::sync::Arc<std::sync::Mutex<std::collections::VecDeque<Incoming>>>,
+    /// Whether a message sent now would have had somewhere to go: as the recorded link had a
+    /// peer from the start (udpout, TCP, serial) or learned it from the autopilot (udpin).
+    peer_known: std::sync::Arc<std::sync::atomic::AtomicBool>,
 }
 
 impl ReplayFeed {
-    pub fn new() -> Self {
-        Self::default()
+    /// A feed for a link that had a peer from the start (`peer_known`), or learns it.
+    pub fn new(peer_known: bool) -> Self {
+        let feed = Self::default();
+        feed.peer_known
+            .store(peer_known, std::sync::atomic::Ordering::Release);
+        feed
+    }
+
+    fn peer_known(&self) -> bool {
+        self.peer_known.load(std::sync::atomic::Ordering::Acquire)
     }
 
     /// Queues one recorded batch for the link's next receive.
@@ -300,7 +311,8 @@ impl Transport {
     pub fn send(&mut self, header: MavHeader, message: &MavMessage) -> io::Result<bool> {
         match self {
             Self::Udp(udp) => udp.send(header, message),
-            Self::Replay(_) => Ok(true),
+            // As the recorded udpin link did: nothing goes out before the autopilot is heard.
+            Self::Replay(feed) => Ok(feed.peer_known()),
             Self::Stream(connection) => {
                 connection
                     .send(&header, message)
@@ -310,6 +322,26 @@ impl Transport {
                         other => io::Error::other(other.to_string()),
                     })
             }
+        }
+    }
+
+    /// Whether a message sent now has somewhere to go (udpin: once the autopilot is heard).
+    pub fn has_peer(&self) -> bool {
+        match self {
+            Self::Udp(udp) => udp.peer.is_some(),
+            Self::Stream(_) => true,
+            Self::Replay(feed) => feed.peer_known(),
+        }
+    }
+
+    /// The autopilot was heard: udpin replies to it from now on.
+    pub fn learn_peer(&mut self, from: Option<SocketAddr>) {
+        match (self, from) {
+            (Self::Udp(udp), Some(from)) => udp.set_peer(from),
+            (Self::Replay(feed), _) => feed
+                .peer_known
+                .store(true, std::sync::atomic::Ordering::Release),
+            _ => {}
         }
     }
 

@@ -186,6 +186,11 @@ impl MavlinkLink {
         Self::with_transport(Transport::Replay(feed), config)
     }
 
+    /// Whether what the link sends has somewhere to go yet (udpin: once the autopilot spoke).
+    pub fn has_peer(&self) -> bool {
+        self.transport.has_peer()
+    }
+
     /// Keeps what is received and sent from now on for [`Self::take_capture`] (a recorder).
     pub fn start_capture(&mut self) {
         self.capture.get_or_insert_with(LinkCapture::default);
@@ -473,9 +478,7 @@ impl MavlinkLink {
             }
         }
         if from_autopilot {
-            if let (Some(from), Transport::Udp(udp)) = (incoming.from, &mut self.transport) {
-                udp.set_peer(from);
-            }
+            self.transport.learn_peer(incoming.from);
         }
         barrier
     }

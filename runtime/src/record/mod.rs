@@ -63,6 +63,11 @@ pub enum RecordError {
     WriterPanicked,
     #[error("not a qosrt recording: {0}")]
     NotARecording(String),
+    #[error(
+        "the recorded config names {path} by an absolute path and this machine has no identical \
+         copy there: replay with --config"
+    )]
+    AbsoluteConfigPath { path: PathBuf },
 }
 
 /// Where a recorded mission came from.
@@ -92,6 +97,9 @@ pub struct RecordingHeader {
     pub camera: bool,
     /// The config's name among the recording's attachments.
     pub config_file: String,
+    /// The link had somewhere to send from the start (udpout, TCP, serial); udpin learns it
+    /// from the autopilot's first message.
+    pub link_peer_known: bool,
 }
 
 impl RecordingHeader {
@@ -115,6 +123,7 @@ impl RecordingHeader {
             landing_target: options.landing_target,
             camera,
             config_file,
+            link_peer_known: false,
         }
     }
 }
@@ -155,7 +164,8 @@ impl ConfigFile {
 
 /// Writes a recording's config files under `dir` as they lay beside each other, and returns
 /// the config's path there. A profile outside the config's folder (`../x.toml`) keeps its
-/// place: the config goes as many folders deep as the deepest such path climbs.
+/// place: the config goes as many folders deep as the deepest such path climbs. A profile named
+/// by an absolute path is used where it is, if an identical copy is there.
 pub fn extract_config(
     files: &[ConfigFile],
     config_file: &str,
@@ -167,7 +177,12 @@ pub fn extract_config(
             .take_while(|c| matches!(c, std::path::Component::ParentDir))
             .count()
     };
-    let depth = files.iter().map(|f| climbs(&f.path)).max().unwrap_or(0);
+    let depth = files
+        .iter()
+        .filter(|f| !Path::new(&f.path).is_absolute())
+        .map(|f| climbs(&f.path))
+        .max()
+        .unwrap_or(0);
     let mut base = dir.to_path_buf();
     for level in 0..depth {
         base.push(format!("d{level}"));
@@ -178,11 +193,18 @@ pub fn extract_config(
     };
     for file in files {
         let relative = Path::new(&file.path);
-        if relative.is_absolute()
-            || relative
-                .components()
-                .skip(climbs(&file.path))
-                .any(|c| matches!(c, std::path::Component::ParentDir))
+        if relative.is_absolute() {
+            if std::fs::read(relative).ok().as_deref() != Some(&file.data[..]) {
+                return Err(RecordError::AbsoluteConfigPath {
+                    path: relative.to_path_buf(),
+                });
+            }
+            continue;
+        }
+        if relative
+            .components()
+            .skip(climbs(&file.path))
+            .any(|c| matches!(c, std::path::Component::ParentDir))
         {
             return Err(RecordError::NotARecording(format!(
                 "its config file {:?} is not a relative path",
@@ -243,6 +265,20 @@ mod tests {
         assert!(matches!(
             extract_config(&escaping, "qos.toml", dir.path()),
             Err(RecordError::NotARecording(_))
+        ));
+        // An absolute path is used where it is when the file there is the recorded one.
+        let here = dir.path().join("board.toml");
+        std::fs::write(&here, b"measured").unwrap();
+        let absolute = |data: &[u8]| {
+            [ConfigFile {
+                path: here.to_string_lossy().into_owned(),
+                data: data.to_vec(),
+            }]
+        };
+        assert!(extract_config(&absolute(b"measured"), "qos.toml", dir.path()).is_ok());
+        assert!(matches!(
+            extract_config(&absolute(b"another board"), "qos.toml", dir.path()),
+            Err(RecordError::AbsoluteConfigPath { .. })
         ));
     }
 }

@@ -115,7 +115,7 @@ pub fn replay(
     let depth_frames = bus
         .publisher::<DepthFrame>(DEPTH_FRAME)
         .map_err(|e| ReplayError::Setup(e.into()))?;
-    let feed = ReplayFeed::new();
+    let feed = ReplayFeed::new(header.link_peer_known);
     let frames = MemorySource::new();
     let runner_options = RunnerOptions {
         landing_target: header.landing_target,
