@@ -2,11 +2,10 @@
 //! and clock, and where their outputs differ from the recording; and the `--record` /
 //! `--foxglove` options `qosrt sim` and `qosrt run` share.
 
-use crate::check::{report_failure, EXIT_INVALID_CONFIG};
-use runtime::config::load_file;
-use runtime::energy::{load_mission_model, MissionModel};
+use crate::check::EXIT_INVALID_CONFIG;
+use crate::sim::load_model;
 use runtime::plugins::builtin_registry;
-use runtime::record::replay::read_recording_file;
+use runtime::record::read_recording_file;
 use runtime::record::{extract_config, replay, RecorderOptions, ReplayOptions, ReplayReport};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -111,19 +110,6 @@ pub fn run(args: &ReplayArgs) -> ExitCode {
     } else {
         ExitCode::from(EXIT_OUTPUTS_DIFFER)
     }
-}
-
-fn load_model(path: &Path, json: bool) -> Option<MissionModel> {
-    let loaded = load_file(path, &runtime::catalog::PluginCatalog::builtin())
-        .map_err(|failure| report_failure(&failure, json))
-        .ok()?;
-    load_mission_model(&loaded)
-        .map_err(|reports| {
-            for report in &reports {
-                report_failure(report, json);
-            }
-        })
-        .ok()
 }
 
 /// The report, for people.

@@ -336,7 +336,12 @@ fn load(file: &Path, json: bool) -> Option<(MissionModel, PluginRegistry)> {
             return None;
         }
     };
-    // The full catalogue: a task whose plugin this build lacks is reported and flown without.
+    Some((load_model(file, json)?, registry))
+}
+
+/// The config at `file` and everything it refers to, its mistakes reported located. The full
+/// catalogue: a task whose plugin this build lacks is reported and flown without.
+pub(crate) fn load_model(file: &Path, json: bool) -> Option<MissionModel> {
     let loaded = match load_file(file, &runtime::catalog::PluginCatalog::builtin()) {
         Ok(loaded) => loaded,
         Err(failure) => {
@@ -345,7 +350,7 @@ fn load(file: &Path, json: bool) -> Option<(MissionModel, PluginRegistry)> {
         }
     };
     match load_mission_model(&loaded) {
-        Ok(model) => Some((model, registry)),
+        Ok(model) => Some(model),
         Err(reports) => {
             for report in &reports {
                 report_failure(report, json);

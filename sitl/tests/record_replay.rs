@@ -6,7 +6,7 @@
 use runtime::config::load_file;
 use runtime::energy::{load_mission_model, MissionModel};
 use runtime::plugins::builtin_registry;
-use runtime::record::replay::read_recording_file;
+use runtime::record::read_recording_file;
 use runtime::record::{
     read_recording, replay, ConfigFile, RecorderOptions, ReplayOptions, ReplayReport,
 };

@@ -125,7 +125,7 @@ pub struct MissionRunner<S: TaskScheduler> {
     stream_requests: (u32, f64),
     /// Where the run is recorded, if it is, and the levels it last recorded.
     recorder: Option<Recorder>,
-    recorded_levels: Option<QosLevels>,
+    recorded_levels: Option<Vec<TaskLevel>>,
 }
 
 impl<S: TaskScheduler> MissionRunner<S> {
@@ -198,9 +198,13 @@ impl<S: TaskScheduler> MissionRunner<S> {
 
     /// The level (and knob value) every task runs at now: fixed, else the governor's.
     pub fn qos_levels(&self) -> QosLevels {
+        self.named_levels(&self.with_fixed(self.governor.current_levels()))
+    }
+
+    /// `levels` by task name, with their knob values.
+    fn named_levels(&self, levels: &[TaskLevel]) -> QosLevels {
         QosLevels {
-            tasks: self
-                .with_fixed(self.governor.current_levels())
+            tasks: levels
                 .iter()
                 .filter_map(|l| {
                     let task = self.model.config.tasks.get(l.task)?;
@@ -223,12 +227,9 @@ impl<S: TaskScheduler> MissionRunner<S> {
             return;
         };
         recorder.link(now_s, self.link.take_capture());
-        let levels = self.qos_levels();
-        let Some(recorder) = &self.recorder else {
-            return;
-        };
+        let levels = self.with_fixed(self.governor.current_levels());
         if self.recorded_levels.as_ref() != Some(&levels) {
-            recorder.levels(now_s, levels.clone());
+            recorder.levels(now_s, self.named_levels(&levels));
             self.recorded_levels = Some(levels);
         }
         recorder.step(StepRecord {

@@ -11,7 +11,7 @@ pub mod reader;
 pub mod recorder;
 pub mod replay;
 
-pub use reader::{read_recording, RecordedMessage, Recording};
+pub use reader::{read_recording, read_recording_file, RecordedMessage, Recording};
 pub use recorder::{Recorder, RecorderOptions, RecordingSummary};
 pub use replay::{replay, ChannelDiff, ReplayError, ReplayOptions, ReplayReport};
 

@@ -108,3 +108,12 @@ pub fn read_recording(bytes: &[u8]) -> Result<Recording, RecordError> {
         truncated,
     })
 }
+
+/// Reads `path` as a recording.
+pub fn read_recording_file(path: &std::path::Path) -> Result<Recording, RecordError> {
+    let bytes = std::fs::read(path).map_err(|source| RecordError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    read_recording(&bytes)
+}

@@ -5,6 +5,7 @@
 use super::channels::{self as ch, ChannelSpec, MavlinkBatch, MavlinkRecord, StepRecord};
 use super::{ConfigFile, RecordError, RecordingHeader, HEADER_METADATA};
 use crate::bus::{Bus, Message};
+use crate::clock::Timestamp;
 use crate::link::LinkCapture;
 use crate::mission::GovernorDecision;
 use crate::scheduler::TaskStats;
@@ -97,8 +98,10 @@ pub struct Recorder {
     live_port: Option<u16>,
 }
 
+/// A time on the runtime's clock in nanoseconds, rounded as the runner's own stamps are (so a
+/// replay gets back the same seconds).
 fn ns(time_s: f64) -> u64 {
-    (time_s.max(0.0) * 1e9).round() as u64
+    Timestamp::from_secs_f64(time_s).as_nanos()
 }
 
 impl Recorder {

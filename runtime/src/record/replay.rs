@@ -350,15 +350,6 @@ fn shortened(value: &serde_json::Value) -> String {
     }
 }
 
-/// Reads `path` as a recording.
-pub fn read_recording_file(path: &std::path::Path) -> Result<Recording, RecordError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    read_recording(&bytes)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
