@@ -2,6 +2,7 @@
 
 use runtime::catalog::PluginCatalog;
 use runtime::config::{load_file, ConfigFailure, LoadedConfig, MissionConfig};
+use runtime::dataflow::{task_graph, TaskGraph};
 use serde::Serialize;
 use std::path::Path;
 use std::process::ExitCode;
@@ -9,13 +10,26 @@ use std::process::ExitCode;
 /// Exit status for a config with mistakes.
 pub const EXIT_INVALID_CONFIG: u8 = 2;
 
-pub fn run(file: &Path, json: bool) -> ExitCode {
-    match load_file(file, &PluginCatalog::builtin()) {
+/// How `--graph` prints the task graph.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum GraphFormat {
+    Text,
+    Dot,
+}
+
+pub fn run(file: &Path, json: bool, graph: Option<GraphFormat>) -> ExitCode {
+    let catalog = PluginCatalog::builtin();
+    match load_file(file, &catalog) {
         Ok(loaded) => {
-            if json {
-                print_json(&Summary::of(&loaded));
-            } else {
-                print!("{}", human_summary(&loaded));
+            let tasks = task_graph(&loaded.config, &catalog);
+            match (graph, json) {
+                (Some(GraphFormat::Dot), _) => {
+                    print!("{}", tasks.render_dot(&loaded.config.mission.name))
+                }
+                (Some(GraphFormat::Text), true) => print_json(&tasks),
+                (Some(GraphFormat::Text), false) => print!("{}", tasks.render_text()),
+                (None, true) => print_json(&Summary::of(&loaded, tasks)),
+                (None, false) => print!("{}", human_summary(&loaded, tasks)),
             }
             ExitCode::SUCCESS
         }
@@ -62,6 +76,8 @@ struct Summary<'a> {
     phases: Vec<PhaseSummary<'a>>,
     power_model: &'a runtime::config::PowerModelConfig,
     tasks: Vec<TaskSummary<'a>>,
+    /// Who feeds whom over the bus.
+    graph: TaskGraph,
 }
 
 #[derive(Serialize)]
@@ -109,7 +125,7 @@ struct LevelSummary {
 }
 
 impl<'a> Summary<'a> {
-    fn of(loaded: &'a LoadedConfig) -> Self {
+    fn of(loaded: &'a LoadedConfig, graph: TaskGraph) -> Self {
         let config: &MissionConfig = &loaded.config;
         let battery = &config.battery;
         Summary {
@@ -169,12 +185,13 @@ impl<'a> Summary<'a> {
                     params: &task.params,
                 })
                 .collect(),
+            graph,
         }
     }
 }
 
-fn human_summary(loaded: &LoadedConfig) -> String {
-    let summary = Summary::of(loaded);
+fn human_summary(loaded: &LoadedConfig, graph: TaskGraph) -> String {
+    let summary = Summary::of(loaded, graph);
     let mut out = format!(
         "{}: valid\nmission `{}`{}\n  reserve at touchdown: {:.0} % of usable energy\n",
         summary.file,

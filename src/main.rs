@@ -50,6 +50,10 @@ enum Command {
         /// Print the summary (or the errors) as JSON.
         #[arg(long)]
         json: bool,
+        /// Print the task graph instead of the summary: who feeds whom over the bus (`dot` for
+        /// Graphviz: `qosrt check --graph dot | dot -Tsvg > graph.svg`).
+        #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "text")]
+        graph: Option<check::GraphFormat>,
     },
     /// Run the landing-marker detector on image files (PNG, JPEG, PGM).
     Detect {
@@ -169,7 +173,7 @@ fn main() -> ExitCode {
             .init();
     }
     match cli.command {
-        Command::Check { file, json } => check::run(&file, json),
+        Command::Check { file, json, graph } => check::run(&file, json, graph),
         Command::Sim(args) => sim::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Profile(args) => profile::run(&args),

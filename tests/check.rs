@@ -410,6 +410,53 @@ fn the_json_summary_says_what_the_file_says() {
     assert!((summary["battery"]["capacity_wh"].as_f64().unwrap() - capacity_wh).abs() < 1e-9);
 }
 
+/// `--graph` prints who feeds whom; each line checked against the reference mission's tasks as
+/// the file names them (read here as plain TOML) and the plugins' documented ports.
+#[test]
+fn the_graph_shows_the_reference_missions_dataflow() {
+    let output = qosrt(&["check", "qos.toml", "--graph"]);
+    assert_eq!(output.status.code(), Some(0));
+    let text = String::from_utf8(output.stdout).unwrap();
+    let file: toml::Table = reference_text().parse().unwrap();
+    let headers: Vec<String> = file["task"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|task| {
+            format!(
+                "{} ({})",
+                task["name"].as_str().unwrap(),
+                task["plugin"].as_str().unwrap()
+            )
+        })
+        .collect();
+    let found: Vec<&str> = text.lines().filter(|line| !line.starts_with(' ')).collect();
+    assert_eq!(found, headers, "{text}");
+    for line in [
+        "  reads  camera/frame (CameraFrame) ← camera",
+        "  writes vision/landing_marker (MarkerObservation) → tracking",
+        "  reads  vision/landing_marker (MarkerObservation) ← detection",
+        "  writes landing/setpoint (LandingSetpoint) → autopilot",
+    ] {
+        assert!(text.lines().any(|l| l == line), "no `{line}` in\n{text}");
+    }
+
+    let output = qosrt(&["check", "--graph", "dot", "qos.toml"]);
+    assert_eq!(output.status.code(), Some(0));
+    let dot = String::from_utf8(output.stdout).unwrap();
+    assert!(dot.starts_with("digraph \"tractor-landing\" {"), "{dot}");
+    assert!(
+        dot.contains("\"task:detection\" -> \"task:tracking\" [label=\"vision/landing_marker\"];")
+    );
+    assert!(dot.contains("\"task:landing\" -> \"mission:autopilot\" [label=\"landing/setpoint\"];"));
+
+    let output = qosrt(&["check", "qos.toml", "--json", "--graph"]);
+    let graph: serde_json::Value = serde_json::from_slice(&output.stdout).expect("JSON");
+    let edges = graph["edges"].as_array().unwrap();
+    assert_eq!(edges.len(), dot.matches(" -> ").count());
+    assert!(graph["unfed"].as_array().unwrap().is_empty());
+}
+
 fn check_bad(text: &[u8], file_name: &str) -> (tempfile::TempDir, PathBuf, Output) {
     let dir = tempfile::tempdir().unwrap();
     let path = write_temp(&dir, file_name, text);

@@ -39,7 +39,7 @@ impl Task for Trivial {
 fn registry() -> PluginRegistry {
     let mut registry = PluginRegistry::new();
     let trivial =
-        |_: &toml::Table, _: &TaskConfig| Ok(Box::new(Trivial { count: 0 }) as Box<dyn Task>);
+        |_: &runtime::task::TaskBuild<'_>| Ok(Box::new(Trivial { count: 0 }) as Box<dyn Task>);
     registry.register("trivial", trivial).expect("registers");
     for info in BUILTIN_PLUGINS {
         registry

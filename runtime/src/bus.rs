@@ -9,16 +9,62 @@
 //!   full, the topic's [`Overflow`] policy either drops the oldest message or rejects the new
 //!   one; both are counted.
 //!
-//! A topic's name is bound to one message type and one kind at first use; asking for it with
-//! another type or kind is a named error, never a silent second topic. There is no global
-//! state: a [`Bus`] is an object the scheduler hands to its tasks (cloning shares it).
+//! A topic is declared once as a [`Topic`] constant, its name and message type together (the
+//! built-in ones are in [`crate::topics`]). A name is bound to one type and one kind at first
+//! use; asking for it with another type or kind is a named error, never a silent second topic.
+//! There is no global state: a [`Bus`] is an object the scheduler hands to its tasks (cloning
+//! shares it).
 
 use crate::clock::Timestamp;
 use std::any::{type_name, Any, TypeId};
 use std::collections::{BTreeMap, VecDeque};
 use std::fmt;
+use std::marker::PhantomData;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, OnceLock, PoisonError};
+
+/// A topic's name and message type, declared once: a publisher and a subscriber made from the
+/// same constant cannot disagree on the type, and a plugin's ports name it
+/// ([`crate::catalog::Port`]).
+pub struct Topic<T> {
+    name: &'static str,
+    message: &'static str,
+    _message: PhantomData<fn() -> T>,
+}
+
+impl<T> Topic<T> {
+    /// The topic `name` carrying `T`, which `message` names for people (`qosrt check --graph`).
+    pub const fn new(name: &'static str, message: &'static str) -> Self {
+        Topic {
+            name,
+            message,
+            _message: PhantomData,
+        }
+    }
+
+    pub const fn name(&self) -> &'static str {
+        self.name
+    }
+
+    /// The message type's name, as declared.
+    pub const fn message(&self) -> &'static str {
+        self.message
+    }
+}
+
+impl<T> Clone for Topic<T> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+
+impl<T> Copy for Topic<T> {}
+
+impl<T> fmt::Debug for Topic<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} ({})", self.name, self.message)
+    }
+}
 
 /// One message: the value, when it was stamped, and its sequence number on its topic
 /// (1 for the first message published, counting every message ever offered).
@@ -176,24 +222,24 @@ impl Bus {
         Self::default()
     }
 
-    /// A publisher on the latest-value topic `topic` of type `T` (created on first use).
+    /// A publisher on the latest-value topic `topic` (created on first use).
     pub fn publisher<T: Send + Sync + 'static>(
         &self,
-        topic: &str,
+        topic: Topic<T>,
     ) -> Result<Publisher<T>, BusError> {
         Ok(Publisher {
-            slot: self.latest_slot::<T>(topic)?,
+            slot: self.latest_slot::<T>(topic.name)?,
         })
     }
 
-    /// A subscriber to the latest-value topic `topic` of type `T` (created on first use). It has
-    /// seen nothing yet: a message already on the topic counts as new.
+    /// A subscriber to the latest-value topic `topic` (created on first use). It has seen
+    /// nothing yet: a message already on the topic counts as new.
     pub fn subscriber<T: Send + Sync + 'static>(
         &self,
-        topic: &str,
+        topic: Topic<T>,
     ) -> Result<Subscriber<T>, BusError> {
         Ok(Subscriber {
-            slot: self.latest_slot::<T>(topic)?,
+            slot: self.latest_slot::<T>(topic.name)?,
             seen_seq: 0,
         })
     }
@@ -202,11 +248,11 @@ impl Bus {
     /// must ask for the same.
     pub fn queue_sender<T: Send + 'static>(
         &self,
-        topic: &str,
+        topic: Topic<T>,
         spec: QueueSpec,
     ) -> Result<QueueSender<T>, BusError> {
         Ok(QueueSender {
-            queue: self.queue_slot::<T>(topic, spec)?,
+            queue: self.queue_slot::<T>(topic.name, spec)?,
         })
     }
 
@@ -214,13 +260,13 @@ impl Bus {
     /// restarted task), with the messages queued meanwhile still waiting.
     pub fn queue_receiver<T: Send + 'static>(
         &self,
-        topic: &str,
+        topic: Topic<T>,
         spec: QueueSpec,
     ) -> Result<QueueReceiver<T>, BusError> {
-        let queue = self.queue_slot::<T>(topic, spec)?;
+        let queue = self.queue_slot::<T>(topic.name, spec)?;
         if queue.receiver_taken.swap(true, Ordering::AcqRel) {
             return Err(BusError::ReceiverTaken {
-                topic: topic.to_string(),
+                topic: topic.name.to_string(),
             });
         }
         Ok(QueueReceiver { queue })
@@ -229,12 +275,16 @@ impl Bus {
     /// Hands every message published on the latest-value topic `topic` from now on to `tap`,
     /// on the publisher's thread, in publication order (a recorder: the tap only queues the
     /// message for its own thread).
-    pub fn tap<T: Send + Sync + 'static>(&self, topic: &str, tap: Tap<T>) -> Result<(), BusError> {
-        self.latest_slot::<T>(topic)?
+    pub fn tap<T: Send + Sync + 'static>(
+        &self,
+        topic: Topic<T>,
+        tap: Tap<T>,
+    ) -> Result<(), BusError> {
+        self.latest_slot::<T>(topic.name)?
             .tap
             .set(tap)
             .map_err(|_| BusError::AlreadyTapped {
-                topic: topic.to_string(),
+                topic: topic.name.to_string(),
             })
     }
 
@@ -590,6 +640,10 @@ impl<T> Drop for QueueReceiver<T> {
 mod tests {
     use super::*;
 
+    fn topic<T>(name: &'static str) -> Topic<T> {
+        Topic::new(name, "test message")
+    }
+
     #[derive(Debug, Clone, PartialEq)]
     struct Marker {
         x_m: f64,
@@ -598,8 +652,8 @@ mod tests {
     #[test]
     fn latest_value_reader_sees_newest_and_knows_whether_it_is_new() {
         let bus = Bus::new();
-        let publisher = bus.publisher::<Marker>("marker").unwrap();
-        let mut subscriber = bus.subscriber::<Marker>("marker").unwrap();
+        let publisher = bus.publisher(topic::<Marker>("marker")).unwrap();
+        let mut subscriber = bus.subscriber(topic::<Marker>("marker")).unwrap();
         assert!(!subscriber.updated());
         assert!(subscriber.latest().is_none());
 
@@ -616,7 +670,7 @@ mod tests {
         assert_eq!(subscriber.latest().unwrap().seq, 2);
 
         // A subscriber created late still gets the value already there, as new.
-        let mut late = bus.subscriber::<Marker>("marker").unwrap();
+        let mut late = bus.subscriber(topic::<Marker>("marker")).unwrap();
         assert!(late.updated());
         assert_eq!(late.take_new().unwrap().value.x_m, 2.0);
 
@@ -628,15 +682,15 @@ mod tests {
     #[test]
     fn a_tap_sees_every_message_in_order_where_a_reader_sees_the_latest() {
         let bus = Bus::new();
-        let publisher = bus.publisher::<Marker>("marker").unwrap();
+        let publisher = bus.publisher(topic::<Marker>("marker")).unwrap();
         publisher.publish(Timestamp::from_millis(1), Marker { x_m: 0.0 });
         let seen = Arc::new(Mutex::new(Vec::new()));
         let log = seen.clone();
         let tap: Tap<Marker> = Box::new(move |m: &Arc<Message<Marker>>| {
             lock(&log).push((m.seq, m.value.x_m));
         });
-        bus.tap::<Marker>("marker", tap).unwrap();
-        let mut reader = bus.subscriber::<Marker>("marker").unwrap();
+        bus.tap(topic::<Marker>("marker"), tap).unwrap();
+        let mut reader = bus.subscriber(topic::<Marker>("marker")).unwrap();
         for i in 1..=3 {
             publisher.publish(Timestamp::from_millis(10 * i), Marker { x_m: i as f64 });
         }
@@ -646,14 +700,14 @@ mod tests {
         // One tap per topic; another type is the usual mismatch.
         let second: Tap<Marker> = Box::new(|_| {});
         assert_eq!(
-            bus.tap::<Marker>("marker", second),
+            bus.tap(topic::<Marker>("marker"), second),
             Err(BusError::AlreadyTapped {
                 topic: "marker".into()
             })
         );
         let other: Tap<f64> = Box::new(|_| {});
         assert!(matches!(
-            bus.tap::<f64>("marker", other),
+            bus.tap(topic::<f64>("marker"), other),
             Err(BusError::TypeMismatch { .. })
         ));
     }
@@ -661,8 +715,8 @@ mod tests {
     #[test]
     fn wrong_type_or_kind_is_a_named_error() {
         let bus = Bus::new();
-        let _publisher = bus.publisher::<Marker>("marker").unwrap();
-        match bus.subscriber::<f64>("marker") {
+        let _publisher = bus.publisher(topic::<Marker>("marker")).unwrap();
+        match bus.subscriber(topic::<f64>("marker")) {
             Err(BusError::TypeMismatch {
                 topic,
                 existing,
@@ -675,7 +729,7 @@ mod tests {
             other => panic!("expected a type mismatch, got {other:?}"),
         }
         assert_eq!(
-            bus.queue_sender::<Marker>("marker", QueueSpec::reject(4))
+            bus.queue_sender(topic::<Marker>("marker"), QueueSpec::reject(4))
                 .unwrap_err(),
             BusError::KindMismatch {
                 topic: "marker".into(),
@@ -684,10 +738,13 @@ mod tests {
             }
         );
         assert_eq!(
-            bus.publisher::<Marker>("").unwrap_err(),
+            bus.publisher(topic::<Marker>("")).unwrap_err(),
             BusError::EmptyTopicName
         );
-        let message = bus.subscriber::<u8>("marker").unwrap_err().to_string();
+        let message = bus
+            .subscriber(topic::<u8>("marker"))
+            .unwrap_err()
+            .to_string();
         assert!(
             message.contains("`marker`") && message.contains("u8"),
             "{message}"
@@ -698,10 +755,10 @@ mod tests {
     fn drop_oldest_queue_keeps_the_newest_and_counts_the_dropped() {
         let bus = Bus::new();
         let sender = bus
-            .queue_sender::<u32>("setpoints", QueueSpec::drop_oldest(3))
+            .queue_sender(topic::<u32>("setpoints"), QueueSpec::drop_oldest(3))
             .unwrap();
         let mut receiver = bus
-            .queue_receiver::<u32>("setpoints", QueueSpec::drop_oldest(3))
+            .queue_receiver(topic::<u32>("setpoints"), QueueSpec::drop_oldest(3))
             .unwrap();
         for value in 1..=5 {
             let sent = sender.send(Timestamp::from_millis(value.into()), value);
@@ -732,10 +789,10 @@ mod tests {
     fn reject_queue_hands_the_message_back_and_counts_it() {
         let bus = Bus::new();
         let sender = bus
-            .queue_sender::<&'static str>("events", QueueSpec::reject(2))
+            .queue_sender(topic::<&'static str>("events"), QueueSpec::reject(2))
             .unwrap();
         let mut receiver = bus
-            .queue_receiver::<&'static str>("events", QueueSpec::reject(2))
+            .queue_receiver(topic::<&'static str>("events"), QueueSpec::reject(2))
             .unwrap();
         assert_eq!(sender.send(Timestamp::ZERO, "a"), Ok(Sent::Queued));
         assert_eq!(sender.send(Timestamp::ZERO, "b"), Ok(Sent::Queued));
@@ -752,35 +809,35 @@ mod tests {
     fn a_queue_has_one_receiver_and_one_spec() {
         let bus = Bus::new();
         let spec = QueueSpec::reject(4);
-        let sender = bus.queue_sender::<u8>("q", spec).unwrap();
-        let receiver = bus.queue_receiver::<u8>("q", spec).unwrap();
+        let sender = bus.queue_sender(topic::<u8>("q"), spec).unwrap();
+        let receiver = bus.queue_receiver(topic::<u8>("q"), spec).unwrap();
         assert_eq!(
-            bus.queue_receiver::<u8>("q", spec).unwrap_err(),
+            bus.queue_receiver(topic::<u8>("q"), spec).unwrap_err(),
             BusError::ReceiverTaken { topic: "q".into() }
         );
         assert!(matches!(
-            bus.queue_sender::<u8>("q", QueueSpec::drop_oldest(4)),
+            bus.queue_sender(topic::<u8>("q"), QueueSpec::drop_oldest(4)),
             Err(BusError::QueueSpecMismatch { .. })
         ));
         assert_eq!(
-            bus.queue_sender::<u8>("z", QueueSpec::reject(0))
+            bus.queue_sender(topic::<u8>("z"), QueueSpec::reject(0))
                 .unwrap_err(),
             BusError::ZeroCapacity { topic: "z".into() }
         );
         // A restarted task takes the queue over with what was sent meanwhile.
         sender.send(Timestamp::ZERO, 7).unwrap();
         drop(receiver);
-        let mut again = bus.queue_receiver::<u8>("q", spec).unwrap();
+        let mut again = bus.queue_receiver(topic::<u8>("q"), spec).unwrap();
         assert_eq!(again.recv().unwrap().value, 7);
     }
 
     #[test]
     fn publishers_on_other_threads_reach_subscribers() {
         let bus = Bus::new();
-        let mut subscriber = bus.subscriber::<u64>("count").unwrap();
+        let mut subscriber = bus.subscriber(topic::<u64>("count")).unwrap();
         let handles: Vec<_> = (0..4)
             .map(|_| {
-                let publisher = bus.publisher::<u64>("count").unwrap();
+                let publisher = bus.publisher(topic::<u64>("count")).unwrap();
                 std::thread::spawn(move || {
                     for i in 0..100 {
                         publisher.publish(Timestamp::ZERO, i);

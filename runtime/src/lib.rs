@@ -6,6 +6,7 @@ pub mod camera;
 pub mod catalog;
 pub mod clock;
 pub mod config;
+pub mod dataflow;
 pub mod diagnostic;
 pub mod dry_run;
 pub mod energy;

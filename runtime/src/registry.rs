@@ -15,23 +15,54 @@
 //!
 //! let mut registry = PluginRegistry::new();
 //! registry
-//!     .register("blink", |_params, _config| Ok(Box::new(Blink { count: 0 })))
+//!     .register("blink", |_build| Ok(Box::new(Blink { count: 0 })))
 //!     .unwrap();
 //! assert!(registry.catalog().get("blink").is_some());
 //! ```
 
+use crate::bus::Bus;
 use crate::catalog::{PluginCatalog, PluginInfo};
 use crate::config::suggest::closest;
 use crate::config::{Knob, Resource, TaskConfig};
-use crate::task::{panic_message, Task, TaskError};
+use crate::task::{panic_message, Task, TaskBuild, TaskError};
 use std::fmt;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
 
-/// Builds a task instance from its `[task.params]` and its config. Called again for every
-/// restart, possibly on the task's worker thread.
-pub type TaskFactory =
-    Arc<dyn Fn(&toml::Table, &TaskConfig) -> Result<Box<dyn Task>, TaskError> + Send + Sync>;
+/// Builds a task instance from its params, config and ports. Called again for every restart,
+/// possibly on the task's worker thread.
+type MakeTask = dyn Fn(&TaskBuild<'_>) -> Result<Box<dyn Task>, TaskError> + Send + Sync;
+
+/// A registered plugin's factory with its catalogue entry (which bounds the ports it may take).
+#[derive(Clone)]
+pub struct TaskFactory {
+    info: PluginInfo,
+    make: Arc<MakeTask>,
+}
+
+impl TaskFactory {
+    pub fn info(&self) -> &PluginInfo {
+        &self.info
+    }
+
+    /// A new instance of `task` from `params` (its `[task.params]` less the scheduler's own
+    /// keys), with its ports on `bus`. An error or a panic is a [`RegistryError::Create`].
+    pub fn create(
+        &self,
+        params: &toml::Table,
+        task: &TaskConfig,
+        bus: &Bus,
+    ) -> Result<Box<dyn Task>, RegistryError> {
+        let build = TaskBuild::new(params, task, &self.info, bus);
+        let created = catch_unwind(AssertUnwindSafe(|| (self.make)(&build)))
+            .unwrap_or_else(|payload| Err(TaskError::Failed(panic_message(payload.as_ref()))));
+        created.map_err(|source| RegistryError::Create {
+            task: task.name.clone(),
+            plugin: task.plugin.clone(),
+            source,
+        })
+    }
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum RegistryError {
@@ -73,17 +104,12 @@ pub enum RegistryError {
     },
 }
 
-struct Registered {
-    info: PluginInfo,
-    factory: TaskFactory,
-}
-
 /// Factories by plugin name. Not global: the binary (or a user's) builds one and hands it to
 /// the scheduler.
 #[derive(Default)]
 pub struct PluginRegistry {
     // Registration order, so the catalogue lists plugins as they were registered.
-    plugins: Vec<Registered>,
+    plugins: Vec<TaskFactory>,
 }
 
 impl fmt::Debug for PluginRegistry {
@@ -92,51 +118,34 @@ impl fmt::Debug for PluginRegistry {
     }
 }
 
-/// What a plugin registered by name alone may do: run anywhere, with either knob.
-const ANY_RESOURCE: &[Resource] = &[Resource::Cpu, Resource::Gpu];
-const ANY_KNOB: &[Knob] = &[Knob::RateFps, Knob::PeriodMs];
-
 impl PluginRegistry {
     /// An empty registry.
     pub fn new() -> Self {
         Self::default()
     }
 
-    /// Registers `factory` under `name`; the plugin may run on any resource with either knob.
+    /// Registers `factory` under `name`; the plugin may run on any resource with either knob,
+    /// and touches no topic (declare its ports with [`PluginRegistry::register_plugin`]).
     pub fn register<F>(
         &mut self,
         name: &'static str,
         factory: F,
     ) -> Result<&mut Self, RegistryError>
     where
-        F: Fn(&toml::Table, &TaskConfig) -> Result<Box<dyn Task>, TaskError>
-            + Send
-            + Sync
-            + 'static,
+        F: Fn(&TaskBuild<'_>) -> Result<Box<dyn Task>, TaskError> + Send + Sync + 'static,
     {
-        self.register_plugin(
-            PluginInfo {
-                name,
-                summary: "user plugin",
-                resources: ANY_RESOURCE,
-                knobs: ANY_KNOB,
-            },
-            factory,
-        )
+        self.register_plugin(PluginInfo::user(name), factory)
     }
 
-    /// Registers `factory` with its catalogue entry (summary, resources, knobs), which the config
-    /// check enforces.
+    /// Registers `factory` with its catalogue entry (summary, resources, knobs, ports), which the
+    /// config check enforces.
     pub fn register_plugin<F>(
         &mut self,
         info: PluginInfo,
         factory: F,
     ) -> Result<&mut Self, RegistryError>
     where
-        F: Fn(&toml::Table, &TaskConfig) -> Result<Box<dyn Task>, TaskError>
-            + Send
-            + Sync
-            + 'static,
+        F: Fn(&TaskBuild<'_>) -> Result<Box<dyn Task>, TaskError> + Send + Sync + 'static,
     {
         if info.name.trim().is_empty() {
             return Err(RegistryError::EmptyName);
@@ -146,9 +155,9 @@ impl PluginRegistry {
                 plugin: info.name.to_string(),
             });
         }
-        self.plugins.push(Registered {
+        self.plugins.push(TaskFactory {
             info,
-            factory: Arc::new(factory),
+            make: Arc::new(factory),
         });
         Ok(self)
     }
@@ -197,34 +206,18 @@ impl PluginRegistry {
                 supported: join(plugin.info.knobs),
             });
         }
-        Ok(plugin.factory.clone())
+        Ok(plugin.clone())
     }
 
-    /// A new instance of `task`'s plugin from `task.params`. A factory that panics is reported
-    /// as a creation error.
-    pub fn create(&self, task: &TaskConfig) -> Result<Box<dyn Task>, RegistryError> {
-        let factory = self.resolve(task)?;
-        create_with(&factory, &task.params, task)
+    /// A new instance of `task`'s plugin from `task.params`, with its ports on `bus`. A factory
+    /// that panics is reported as a creation error.
+    pub fn create(&self, task: &TaskConfig, bus: &Bus) -> Result<Box<dyn Task>, RegistryError> {
+        self.resolve(task)?.create(&task.params, task, bus)
     }
 
-    fn find(&self, name: &str) -> Option<&Registered> {
+    fn find(&self, name: &str) -> Option<&TaskFactory> {
         self.plugins.iter().find(|plugin| plugin.info.name == name)
     }
-}
-
-/// Calls `factory`, turning an error or a panic into [`RegistryError::Create`].
-pub(crate) fn create_with(
-    factory: &TaskFactory,
-    params: &toml::Table,
-    task: &TaskConfig,
-) -> Result<Box<dyn Task>, RegistryError> {
-    let created = catch_unwind(AssertUnwindSafe(|| factory(params, task)))
-        .unwrap_or_else(|payload| Err(TaskError::Failed(panic_message(payload.as_ref()))));
-    created.map_err(|source| RegistryError::Create {
-        task: task.name.clone(),
-        plugin: task.plugin.clone(),
-        source,
-    })
 }
 
 fn join<T: fmt::Display>(items: &[T]) -> String {
@@ -238,8 +231,9 @@ fn join<T: fmt::Display>(items: &[T]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::catalog::BUILTIN_PLUGINS;
-    use crate::task::{parse_params, TaskContext};
+    use crate::catalog::{Port, BUILTIN_PLUGINS};
+    use crate::task::TaskContext;
+    use crate::topics::{LANDING_MARKER, RELATIVE_STATE, VEHICLE_STATE};
 
     struct Counter {
         step_by: u64,
@@ -259,11 +253,8 @@ mod tests {
         step_by: u64,
     }
 
-    fn counter_factory(
-        params: &toml::Table,
-        _config: &TaskConfig,
-    ) -> Result<Box<dyn Task>, TaskError> {
-        let params: CounterParams = parse_params(params)?;
+    fn counter_factory(build: &TaskBuild<'_>) -> Result<Box<dyn Task>, TaskError> {
+        let params: CounterParams = build.parse_params()?;
         Ok(Box::new(Counter {
             step_by: params.step_by,
             total: 0,
@@ -292,20 +283,20 @@ mod tests {
         let mut registry = PluginRegistry::new();
         registry.register("counter", counter_factory).unwrap();
         registry
-            .register("fails", |_, _| Err(TaskError::failed("no camera")))
+            .register("fails", |_| Err(TaskError::failed("no camera")))
             .unwrap();
         assert!(registry
-            .create(&task("counter", Resource::Cpu, "step_by = 3"))
+            .create(&task("counter", Resource::Cpu, "step_by = 3"), &Bus::new())
             .is_ok());
         let error = registry
-            .create(&task("fails", Resource::Cpu, ""))
+            .create(&task("fails", Resource::Cpu, ""), &Bus::new())
             .err()
             .unwrap();
         assert!(matches!(&error, RegistryError::Create { plugin, .. } if plugin == "fails"));
         assert!(error.to_string().contains("no camera"), "{error}");
         // The plugin's own params type rejects a misspelt key, through the registry.
         let error = registry
-            .create(&task("counter", Resource::Cpu, "stepby = 3"))
+            .create(&task("counter", Resource::Cpu, "stepby = 3"), &Bus::new())
             .err()
             .unwrap();
         assert!(error.to_string().contains("stepby"), "{error}");
@@ -319,7 +310,7 @@ mod tests {
             .register("landing_marker", counter_factory)
             .unwrap();
         let error = registry
-            .create(&task("countr", Resource::Cpu, ""))
+            .create(&task("countr", Resource::Cpu, ""), &Bus::new())
             .err()
             .unwrap();
         match &error {
@@ -383,13 +374,68 @@ mod tests {
     fn a_panicking_factory_is_a_creation_error() {
         let mut registry = PluginRegistry::new();
         registry
-            .register("bad", |_, _| panic!("factory exploded"))
+            .register("bad", |_| panic!("factory exploded"))
             .unwrap();
         let error = registry
-            .create(&task("bad", Resource::Cpu, ""))
+            .create(&task("bad", Resource::Cpu, ""), &Bus::new())
             .err()
             .unwrap();
         assert!(error.to_string().contains("factory exploded"), "{error}");
+    }
+
+    /// A factory takes the ports its catalogue entry declares, and no other: the dataflow
+    /// `qosrt check` draws is the one that runs.
+    #[test]
+    fn a_factory_gets_only_the_ports_it_declares() {
+        let info = PluginInfo {
+            inputs: const { &[Port::of(LANDING_MARKER)] },
+            outputs: const { &[Port::of(RELATIVE_STATE)] },
+            ..PluginInfo::user("tracker")
+        };
+        let mut registry = PluginRegistry::new();
+        registry
+            .register_plugin(info, |build| {
+                build.input(LANDING_MARKER)?;
+                build.output(RELATIVE_STATE)?;
+                if build.params().contains_key("sneak") {
+                    build.input(VEHICLE_STATE)?;
+                }
+                Ok(Box::new(Counter {
+                    step_by: 1,
+                    total: 0,
+                }))
+            })
+            .unwrap();
+        let bus = Bus::new();
+        registry
+            .create(&task("tracker", Resource::Cpu, ""), &bus)
+            .unwrap();
+        let names: Vec<String> = bus.topics().into_iter().map(|t| t.name).collect();
+        assert_eq!(names, ["tracking/relative_state", "vision/landing_marker"]);
+        let error = registry
+            .create(&task("tracker", Resource::Cpu, "sneak = true"), &bus)
+            .err()
+            .unwrap();
+        assert!(
+            matches!(
+                &error,
+                RegistryError::Create {
+                    source: TaskError::UndeclaredPort {
+                        topic: "vehicle/state",
+                        direction: "input",
+                        ..
+                    },
+                    ..
+                }
+            ),
+            "{error:?}"
+        );
+        assert!(
+            error
+                .to_string()
+                .contains("does not declare input `vehicle/state`"),
+            "{error}"
+        );
     }
 
     /// A user's plugin passes `qosrt check`'s loader once registered, and is refused before.
@@ -405,7 +451,14 @@ mod tests {
                 .register_plugin(info.clone(), counter_factory)
                 .unwrap();
         }
-        registry.register("my_tracker", counter_factory).unwrap();
+        let my_tracker = PluginInfo {
+            inputs: const { &[Port::of(VEHICLE_STATE), Port::of(LANDING_MARKER)] },
+            outputs: const { &[Port::of(RELATIVE_STATE)] },
+            ..PluginInfo::user("my_tracker")
+        };
+        registry
+            .register_plugin(my_tracker, counter_factory)
+            .unwrap();
         let config = crate::config::load_str(&text, None, &registry.catalog())
             .expect("the user's plugin is known");
         assert_eq!(config.task("tracking").unwrap().plugin, "my_tracker");

@@ -2,8 +2,9 @@
 //! landing guidance, the hazard CNN, or a user's own) implements to be hosted by the scheduler.
 //!
 //! Lifecycle of one instance:
-//! 1. a factory registered under the plugin's name (see [`crate::registry`]) builds it from its
-//!    `[task.params]` and its [`TaskConfig`];
+//! 1. a factory registered under the plugin's name (see [`crate::registry`]) builds it from a
+//!    [`TaskBuild`]: its `[task.params]`, its [`TaskConfig`] and its ports on the bus, which the
+//!    instance holds from then on (a step cannot run without them);
 //! 2. [`Task::set_qos`] gives it its first QoS level, then [`Task::start`] runs once;
 //! 3. [`Task::step`] runs at every activation, at the period of the current level;
 //!    [`Task::set_qos`] runs again (between steps) whenever the level changes;
@@ -12,7 +13,10 @@
 //! A step that returns an error or panics fails the instance: the scheduler drops it and, per the
 //! task's restart policy, builds a fresh one from the factory.
 
-use crate::bus::{Bus, BusError};
+use crate::bus::{
+    Bus, BusError, Publisher, QueueReceiver, QueueSender, QueueSpec, Subscriber, Topic,
+};
+use crate::catalog::PluginInfo;
 use crate::clock::Timestamp;
 use crate::config::{Knob, TaskConfig};
 use serde::de::DeserializeOwned;
@@ -23,8 +27,8 @@ use std::time::Duration;
 
 /// A task plugin. `Send` because the real-time scheduler moves it onto its worker thread.
 pub trait Task: Send {
-    /// Runs once before the first step (after the first [`Task::set_qos`]): take bus handles,
-    /// open devices. An error fails the instance like a failed step.
+    /// Runs once before the first step (after the first [`Task::set_qos`]): open devices, warm
+    /// up. An error fails the instance like a failed step.
     fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
         let _ = ctx;
         Ok(())
@@ -51,6 +55,12 @@ pub enum TaskError {
     Params(String),
     #[error(transparent)]
     Bus(#[from] BusError),
+    #[error("plugin `{plugin}` does not declare {direction} `{topic}` in its catalogue entry")]
+    UndeclaredPort {
+        plugin: &'static str,
+        topic: &'static str,
+        direction: &'static str,
+    },
     #[error("{0}")]
     Failed(String),
     #[error(transparent)]
@@ -64,6 +74,101 @@ impl TaskError {
 
     pub fn other(error: impl std::error::Error + Send + Sync + 'static) -> Self {
         TaskError::Other(Box::new(error))
+    }
+}
+
+/// What a plugin's factory builds a task from: its `[task.params]`, its config, and its ports on
+/// the bus. Only the ports its catalogue entry declares can be taken, so the dataflow
+/// `qosrt check --graph` draws from the catalogue is the one that runs.
+pub struct TaskBuild<'a> {
+    params: &'a toml::Table,
+    config: &'a TaskConfig,
+    plugin: &'a PluginInfo,
+    bus: &'a Bus,
+}
+
+impl<'a> TaskBuild<'a> {
+    /// `params` are the task's `[task.params]` less the scheduler's own keys.
+    pub fn new(
+        params: &'a toml::Table,
+        config: &'a TaskConfig,
+        plugin: &'a PluginInfo,
+        bus: &'a Bus,
+    ) -> Self {
+        TaskBuild {
+            params,
+            config,
+            plugin,
+            bus,
+        }
+    }
+
+    pub fn params(&self) -> &'a toml::Table {
+        self.params
+    }
+
+    pub fn config(&self) -> &'a TaskConfig {
+        self.config
+    }
+
+    /// Parses the params into the plugin's own settings type.
+    pub fn parse_params<P: DeserializeOwned>(&self) -> Result<P, TaskError> {
+        parse_params(self.params)
+    }
+
+    /// A subscriber to the declared input `topic`.
+    pub fn input<T: Send + Sync + 'static>(
+        &self,
+        topic: Topic<T>,
+    ) -> Result<Subscriber<T>, TaskError> {
+        self.declared(self.plugin.inputs, topic.name(), "input")?;
+        Ok(self.bus.subscriber(topic)?)
+    }
+
+    /// A publisher on the declared output `topic`.
+    pub fn output<T: Send + Sync + 'static>(
+        &self,
+        topic: Topic<T>,
+    ) -> Result<Publisher<T>, TaskError> {
+        self.declared(self.plugin.outputs, topic.name(), "output")?;
+        Ok(self.bus.publisher(topic)?)
+    }
+
+    /// The receiver of the declared input queue `topic`.
+    pub fn queue_input<T: Send + 'static>(
+        &self,
+        topic: Topic<T>,
+        spec: QueueSpec,
+    ) -> Result<QueueReceiver<T>, TaskError> {
+        self.declared(self.plugin.inputs, topic.name(), "input")?;
+        Ok(self.bus.queue_receiver(topic, spec)?)
+    }
+
+    /// A sender on the declared output queue `topic`.
+    pub fn queue_output<T: Send + 'static>(
+        &self,
+        topic: Topic<T>,
+        spec: QueueSpec,
+    ) -> Result<QueueSender<T>, TaskError> {
+        self.declared(self.plugin.outputs, topic.name(), "output")?;
+        Ok(self.bus.queue_sender(topic, spec)?)
+    }
+
+    fn declared(
+        &self,
+        ports: &[crate::catalog::Port],
+        topic: &'static str,
+        direction: &'static str,
+    ) -> Result<(), TaskError> {
+        if ports.iter().any(|port| port.topic == topic) {
+            Ok(())
+        } else {
+            Err(TaskError::UndeclaredPort {
+                plugin: self.plugin.name,
+                topic,
+                direction,
+            })
+        }
     }
 }
 
@@ -284,7 +389,6 @@ pub struct TaskContext<'a> {
     now: Timestamp,
     activation: u64,
     level: &'a QosLevel,
-    bus: &'a Bus,
     health: &'a MissionHealth,
     seed: u64,
     reported_step_cost: Option<Duration>,
@@ -296,7 +400,6 @@ impl<'a> TaskContext<'a> {
         name: &'a str,
         now: Timestamp,
         level: &'a QosLevel,
-        bus: &'a Bus,
         health: &'a MissionHealth,
         seed: u64,
     ) -> Self {
@@ -305,7 +408,6 @@ impl<'a> TaskContext<'a> {
             now,
             activation: 0,
             level,
-            bus,
             health,
             seed,
             reported_step_cost: None,
@@ -335,10 +437,6 @@ impl<'a> TaskContext<'a> {
     /// The current QoS level.
     pub fn level(&self) -> &QosLevel {
         self.level
-    }
-
-    pub fn bus(&self) -> &Bus {
-        self.bus
     }
 
     /// Whether any task of the mission is down: the landing logic switches to its safe mode.

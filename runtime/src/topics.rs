@@ -1,14 +1,27 @@
 //! The bus topics the built-in tasks exchange, and their message types. One place, so a camera
 //! source, the detector and the tracker agree on names and types.
 
+use crate::bus::Topic;
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::landing_marker::LandingMarkerObservation;
 use std::sync::Arc;
 
-/// Latest camera frame (latest-value topic): a detector always wants the newest image.
-pub const CAMERA_FRAME: &str = "camera/frame";
-/// Latest landing-marker observation, one per processed frame.
-pub const LANDING_MARKER: &str = "vision/landing_marker";
+/// `topic!(NAME: Message = "name")`: the topic's constant, its message type named once.
+macro_rules! topic {
+    ($(#[$doc:meta])* $constant:ident: $message:ident = $name:literal) => {
+        $(#[$doc])*
+        pub const $constant: Topic<$message> = Topic::new($name, stringify!($message));
+    };
+}
+
+topic!(
+    /// Latest camera frame (latest-value topic): a detector always wants the newest image.
+    CAMERA_FRAME: CameraFrame = "camera/frame"
+);
+topic!(
+    /// Latest landing-marker observation, one per processed frame.
+    LANDING_MARKER: MarkerObservation = "vision/landing_marker"
+);
 
 /// One grayscale frame from the downward camera.
 #[derive(Debug, Clone)]
@@ -35,13 +48,19 @@ pub struct MarkerObservation {
     pub used_roi: bool,
 }
 
-/// Latest vehicle state from the autopilot (MAVLink ATTITUDE, LOCAL_POSITION_NED, distance
-/// sensor), or from the simulator or a dry run's synthetic vehicle.
-pub const VEHICLE_STATE: &str = "vehicle/state";
-/// Latest estimate of the UAV's position relative to the platform.
-pub const RELATIVE_STATE: &str = "tracking/relative_state";
-/// Latest landing setpoint for the autopilot.
-pub const LANDING_SETPOINT: &str = "landing/setpoint";
+topic!(
+    /// Latest vehicle state from the autopilot (MAVLink ATTITUDE, LOCAL_POSITION_NED, distance
+    /// sensor), or from the simulator or a dry run's synthetic vehicle.
+    VEHICLE_STATE: VehicleState = "vehicle/state"
+);
+topic!(
+    /// Latest estimate of the UAV's position relative to the platform.
+    RELATIVE_STATE: RelativeState = "tracking/relative_state"
+);
+topic!(
+    /// Latest landing setpoint for the autopilot.
+    LANDING_SETPOINT: LandingSetpoint = "landing/setpoint"
+);
 
 /// What the autopilot says about the vehicle.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -83,10 +102,12 @@ pub struct LandingSetpoint {
     pub land_command: bool,
 }
 
-/// The mission's current phase, published by the mission runner when a phase begins. Which
-/// tasks run in it is the scheduler's business (a task's `phases`); a task that behaves
-/// differently in the landing reads it.
-pub const MISSION_PHASE: &str = "mission/phase";
+topic!(
+    /// The mission's current phase, published by the mission runner when a phase begins. Which
+    /// tasks run in it is the scheduler's business (a task's `phases`); a task that behaves
+    /// differently in the landing reads it.
+    MISSION_PHASE: MissionPhase = "mission/phase"
+);
 
 /// Which phase of the mission is flying.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -98,8 +119,10 @@ pub struct MissionPhase {
     pub landing: bool,
 }
 
-/// Latest hazard report, one per frame the hazard CNN processed.
-pub const HAZARDS: &str = "vision/hazards";
+topic!(
+    /// Latest hazard report, one per frame the hazard CNN processed.
+    HAZARDS: HazardReport = "vision/hazards"
+);
 
 /// One hazard the CNN saw.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -130,10 +153,14 @@ pub struct HazardReport {
     pub inference_ms: f64,
 }
 
-/// Latest pair of PTU readings of the ground stereo rig (seed 001), one per camera frame.
-pub const PTU_PAIR: &str = "ground/ptu_pair";
-/// Latest target position from the ground stereo rig, one per PTU pair read.
-pub const GROUND_STEREO_FIX: &str = "ground/stereo_fix";
+topic!(
+    /// Latest pair of PTU readings of the ground stereo rig (seed 001), one per camera frame.
+    PTU_PAIR: PtuPairReading = "ground/ptu_pair"
+);
+topic!(
+    /// Latest target position from the ground stereo rig, one per PTU pair read.
+    GROUND_STEREO_FIX: GroundStereoFix = "ground/stereo_fix"
+);
 
 /// One PTU's pan and tilt and where its tracker sees the target (pixels right of and above the
 /// image centre), in the stereo frame of `algorithms::stereo`.
@@ -165,9 +192,11 @@ pub struct GroundStereoFix {
     pub missed: u64,
 }
 
-/// Latest depth frame from the downward stereo camera (seed 000's hybrid camera array), one per
-/// camera frame, with the camera frame's index.
-pub const DEPTH_FRAME: &str = "camera/depth";
+topic!(
+    /// Latest depth frame from the downward stereo camera (seed 000's hybrid camera array), one per
+    /// camera frame, with the camera frame's index.
+    DEPTH_FRAME: DepthFrame = "camera/depth"
+);
 
 /// One depth image: metres along the optical axis, NaN (or any non-positive value) where the
 /// stereo matcher found no depth.
@@ -178,8 +207,10 @@ pub struct DepthFrame {
     pub image: Arc<algorithms::vision::image::DepthImage>,
 }
 
-/// Latest status of the `hybrid_tracking` task, one per frame it processed.
-pub const HYBRID_TRACKING_STATUS: &str = "tracking/hybrid_status";
+topic!(
+    /// Latest status of the `hybrid_tracking` task, one per frame it processed.
+    HYBRID_TRACKING_STATUS: HybridTrackingStatus = "tracking/hybrid_status"
+);
 
 /// What the hybrid tracker did so far: counts since it started, and the latest frame's sources.
 #[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]

@@ -71,6 +71,7 @@ pub fn validate(config: &MissionConfig, plugins: &PluginCatalog) -> Vec<ConfigIs
     check_flight(config, &root.key("flight"), &mut issues);
     check_power_model(config, &root.key("power_model"), &mut issues);
     check_tasks(config, plugins, &root.key("task"), &mut issues);
+    check_dataflow(config, plugins, &root.key("task"), &mut issues);
     if let Some(governor) = &config.governor {
         if let Err(error) = governor.validate() {
             let field = match &error {
@@ -345,6 +346,48 @@ fn check_power_model(config: &MissionConfig, path: &Path, issues: &mut Issues) {
                 issues,
             );
         }
+    }
+}
+
+/// A task whose input nothing publishes would wait for it the whole mission: named at the task,
+/// with the plugins that could feed it.
+fn check_dataflow(
+    config: &MissionConfig,
+    plugins: &PluginCatalog,
+    path: &Path,
+    issues: &mut Issues,
+) {
+    if config
+        .tasks
+        .iter()
+        .any(|task| plugins.get(&task.plugin).is_none())
+    {
+        // An unknown plugin is reported as such; its ports would only add noise.
+        return;
+    }
+    let graph = crate::dataflow::task_graph(config, plugins);
+    for unfed in graph.missing_inputs() {
+        let task = &config.tasks[unfed.task];
+        let add = if unfed.producers.is_empty() {
+            "no plugin in the catalogue publishes it".to_string()
+        } else {
+            format!(
+                "add a task with plugin {}",
+                unfed
+                    .producers
+                    .iter()
+                    .map(|plugin| format!("`{plugin}`"))
+                    .collect::<Vec<_>>()
+                    .join(" or ")
+            )
+        };
+        issues.push(
+            &path.index(unfed.task).key("plugin"),
+            format!(
+                "task `{}` reads `{}` ({}), which no task in this mission publishes; {add}",
+                task.name, unfed.port.topic, unfed.port.message
+            ),
+        );
     }
 }
 

@@ -12,11 +12,12 @@
 //! through this plugin on the bus, in virtual time (`qosrt ptu-stereo approach`).
 
 use crate::bus::{BusError, Publisher, Subscriber};
+use crate::catalog::{PluginInfo, Port};
 use crate::clock::Timestamp;
 use crate::config::{Knob, Resource, TaskConfig};
 use crate::registry::{PluginRegistry, RegistryError};
 use crate::scheduler::{SchedulerBuilder, SchedulerError, TaskStats};
-use crate::task::{Task, TaskContext, TaskError};
+use crate::task::{Task, TaskBuild, TaskContext, TaskError};
 use crate::topics::{GroundStereoFix, PtuPairReading, GROUND_STEREO_FIX, PTU_PAIR};
 use algorithms::stereo::approach::{ApproachConfig, ApproachError, ApproachFrames};
 use algorithms::stereo::triangulation::{
@@ -94,12 +95,12 @@ struct GroundStereoTask {
     rejected: u64,
     missed: u64,
     last_seq: u64,
-    readings: Option<Subscriber<PtuPairReading>>,
-    output: Option<Publisher<GroundStereoFix>>,
+    readings: Subscriber<PtuPairReading>,
+    output: Publisher<GroundStereoFix>,
 }
 
 impl GroundStereoTask {
-    fn new(params: Params) -> Result<Self, TaskError> {
+    fn new(params: Params, build: &TaskBuild<'_>) -> Result<Self, TaskError> {
         let bad = |e: &dyn std::fmt::Display| TaskError::Params(e.to_string());
         let camera = CameraIntrinsics::new(params.focal_length_mm, params.pixel_pitch_um)
             .map_err(|e| bad(&e))?;
@@ -128,8 +129,8 @@ impl GroundStereoTask {
             rejected: 0,
             missed: 0,
             last_seq: 0,
-            readings: None,
-            output: None,
+            readings: build.input(PTU_PAIR)?,
+            output: build.output(GROUND_STEREO_FIX)?,
         })
     }
 
@@ -144,17 +145,8 @@ impl GroundStereoTask {
 }
 
 impl Task for GroundStereoTask {
-    fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        self.readings = Some(ctx.bus().subscriber(PTU_PAIR)?);
-        self.output = Some(ctx.bus().publisher(GROUND_STEREO_FIX)?);
-        Ok(())
-    }
-
     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        let Some(readings) = self.readings.as_mut() else {
-            return Err(TaskError::failed("stepped before start"));
-        };
-        let Some(message) = readings.take_new() else {
+        let Some(message) = self.readings.take_new() else {
             return Ok(());
         };
         self.missed += message.seq.saturating_sub(self.last_seq + 1);
@@ -176,10 +168,7 @@ impl Task for GroundStereoTask {
                 tracing::debug!(task = ctx.name(), %error, "PTU pair refused");
             }
         }
-        let Some(output) = self.output.as_ref() else {
-            return Err(TaskError::failed("stepped before start"));
-        };
-        output.publish(
+        self.output.publish(
             ctx.now(),
             GroundStereoFix {
                 time_s: pair.time_s,
@@ -196,20 +185,15 @@ impl Task for GroundStereoTask {
 /// Publishes the scripted approach's PTU readings, one pair per activation.
 struct ScriptedPtus {
     frames: ApproachFrames,
-    output: Option<Publisher<PtuPairReading>>,
+    output: Publisher<PtuPairReading>,
 }
 
 impl Task for ScriptedPtus {
-    fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        self.output = Some(ctx.bus().publisher(PTU_PAIR)?);
-        Ok(())
-    }
-
     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        let (Some(output), Some(frame)) = (self.output.as_ref(), self.frames.next()) else {
+        let Some(frame) = self.frames.next() else {
             return Ok(());
         };
-        output.publish(
+        self.output.publish(
             ctx.now(),
             PtuPairReading {
                 time_s: frame.time_s,
@@ -289,12 +273,17 @@ pub fn fly_scripted_approach(
     let mut registry = PluginRegistry::new();
     register(&mut registry)?;
     let approach = *config;
-    registry.register("scripted_ptu_pair", move |_, _| {
+    let source = PluginInfo {
+        summary: "the scripted approach's PTU readings, one pair per activation",
+        outputs: const { &[Port::of(PTU_PAIR)] },
+        ..PluginInfo::user("scripted_ptu_pair")
+    };
+    registry.register_plugin(source, move |build| {
         Ok(Box::new(ScriptedPtus {
             frames: approach
                 .frames()
                 .map_err(|e| TaskError::Params(e.to_string()))?,
-            output: None,
+            output: build.output(PTU_PAIR)?,
         }) as Box<dyn Task>)
     })?;
     let mut params = toml::Table::new();
@@ -364,14 +353,25 @@ pub fn fly_scripted_approach(
 mod tests {
     use super::*;
     use crate::bus::Bus;
-    use crate::task::{parse_params, MissionHealth, QosLevel};
+    use crate::task::{MissionHealth, QosLevel};
     use crate::topics::PtuReading;
     use algorithms::stereo::approach::{interval_table, FixError};
     use algorithms::stereo::triangulation::{LineOfSight, Side};
 
     fn task(params: &str) -> Result<GroundStereoTask, TaskError> {
-        let table: toml::Table = toml::from_str(params).unwrap();
-        GroundStereoTask::new(parse_params(&table)?)
+        task_on(&Bus::new(), params)
+    }
+
+    fn task_on(bus: &Bus, params: &str) -> Result<GroundStereoTask, TaskError> {
+        let config = task_config(
+            PLUGIN_NAME,
+            PLUGIN_NAME,
+            40.0,
+            toml::from_str(params).unwrap(),
+        );
+        super::super::build_for_test(&config, bus, |build| {
+            GroundStereoTask::new(build.parse_params()?, build)
+        })
     }
 
     #[test]
@@ -438,8 +438,8 @@ mod tests {
     /// and counted while the task keeps stepping.
     #[test]
     fn bad_pairs_are_published_and_counted_without_failing_the_task() {
-        let mut stereo = task("left_ptu_runway_m = [-5.0, -20.0, 0.0]").unwrap();
         let bus = Bus::new();
+        let mut stereo = task_on(&bus, "left_ptu_runway_m = [-5.0, -20.0, 0.0]").unwrap();
         let level = QosLevel {
             index: 0,
             knob: Knob::PeriodMs,
@@ -451,7 +451,7 @@ mod tests {
         let mut fixes = bus
             .subscriber::<GroundStereoFix>(GROUND_STEREO_FIX)
             .unwrap();
-        let mut ctx = TaskContext::new("ground_stereo", Timestamp::ZERO, &level, &bus, &health, 0);
+        let mut ctx = TaskContext::new("ground_stereo", Timestamp::ZERO, &level, &health, 0);
         stereo.start(&mut ctx).unwrap();
         // Nothing published yet: nothing to do, no fix.
         stereo.step(&mut ctx).unwrap();

@@ -14,7 +14,7 @@ use crate::inference::{
     open_backend, resolve_path, BackendChoice, BackendOptions, InferenceBackend, ModelSource,
 };
 use crate::registry::{PluginRegistry, RegistryError};
-use crate::task::{parse_params, Task, TaskContext, TaskError};
+use crate::task::{Task, TaskBuild, TaskContext, TaskError};
 use crate::topics::{
     CameraFrame, HazardDetection, HazardReport, RelativeState, VehicleState, CAMERA_FRAME, HAZARDS,
     RELATIVE_STATE, VEHICLE_STATE,
@@ -164,13 +164,8 @@ pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
         .expect("the catalogue lists every built-in plugin");
     // Said once per task, not at every restart.
     let cpu_fallback_said = Arc::new(AtomicBool::new(false));
-    registry.register_plugin(info, move |params, config| {
-        let task = HazardCnnTask::new(
-            parse_params(params)?,
-            config.config_dir.as_deref(),
-            config.resource,
-            cpu_fallback_said.clone(),
-        )?;
+    registry.register_plugin(info, move |build| {
+        let task = HazardCnnTask::new(build.parse_params()?, build, cpu_fallback_said.clone())?;
         Ok(Box::new(task) as Box<dyn Task>)
     })?;
     Ok(())
@@ -195,19 +190,22 @@ pub struct HazardCnnTask {
     /// With `pipelined`, the backend on its own thread; a frame's placement travels with it.
     pipeline: Option<InferencePipeline>,
     backend_name: &'static str,
-    frames: Option<Subscriber<CameraFrame>>,
-    vehicle: Option<Subscriber<VehicleState>>,
-    output: Option<Publisher<HazardReport>>,
-    relative: Option<Subscriber<RelativeState>>,
+    frames: Subscriber<CameraFrame>,
+    vehicle: Subscriber<VehicleState>,
+    output: Publisher<HazardReport>,
+    relative: Subscriber<RelativeState>,
 }
 
 impl HazardCnnTask {
     fn new(
         params: Params,
-        config_dir: Option<&std::path::Path>,
-        resource: Resource,
+        build: &TaskBuild<'_>,
         cpu_fallback_said: Arc<AtomicBool>,
     ) -> Result<Self, TaskError> {
+        let (config_dir, resource) = (
+            build.config().config_dir.as_deref(),
+            build.config().resource,
+        );
         let bad = |message: String| Err(TaskError::Params(message));
         if params.classes.is_empty() || params.classes.iter().any(|c| c.trim().is_empty()) {
             return bad("classes must list at least one non-empty class name".into());
@@ -289,10 +287,10 @@ impl HazardCnnTask {
             backend: None,
             pipeline: None,
             backend_name: "",
-            frames: None,
-            vehicle: None,
-            output: None,
-            relative: None,
+            frames: build.input(CAMERA_FRAME)?,
+            vehicle: build.input(VEHICLE_STATE)?,
+            output: build.output(HAZARDS)?,
+            relative: build.input(RELATIVE_STATE)?,
         })
     }
 
@@ -354,10 +352,7 @@ impl HazardCnnTask {
         frame: &CameraFrame,
         capture_time_s: f64,
     ) -> Result<Option<Placement>, TaskError> {
-        let Some(vehicle) = self.vehicle.as_mut() else {
-            return Err(TaskError::failed("stepped before start"));
-        };
-        let state = vehicle.latest().map(|m| m.value);
+        let state = self.vehicle.latest().map(|m| m.value);
         let height_m = state.as_ref().and_then(|s| s.position_ned_m).map(|p| -p.z);
         if height_m.is_some_and(|h| h < self.min_height_m) {
             return Ok(None);
@@ -371,7 +366,7 @@ impl HazardCnnTask {
         // Where the followed pad lies on the ground, from the tracker (UAV − pad) and the vehicle.
         let pad_ne_m = match (
             state.as_ref().and_then(|s| s.position_ned_m),
-            self.relative.as_mut().and_then(|r| r.latest()),
+            self.relative.latest(),
         ) {
             (Some(position), Some(relative)) => {
                 let pad = position - relative.value.estimate.uav_relative_ned_m;
@@ -412,9 +407,7 @@ impl HazardCnnTask {
         mut detections: Vec<Detection>,
         inference_ms: f64,
     ) -> Result<(), TaskError> {
-        let Some(output) = self.output.as_ref() else {
-            return Err(TaskError::failed("stepped before start"));
-        };
+        let output = &self.output;
         detections.truncate(self.max_detections);
         let radius_m = self.pad_exclusion_radius_m;
         let detections: Vec<HazardDetection> = detections
@@ -530,10 +523,6 @@ impl Task for HazardCnnTask {
         } else {
             self.backend = Some(backend);
         }
-        self.frames = Some(ctx.bus().subscriber(CAMERA_FRAME)?);
-        self.vehicle = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
-        self.output = Some(ctx.bus().publisher(HAZARDS)?);
-        self.relative = Some(ctx.bus().subscriber(RELATIVE_STATE)?);
         Ok(())
     }
 
@@ -545,10 +534,7 @@ impl Task for HazardCnnTask {
                 self.publish(ctx, &placement, detections, inference_ms)?;
             }
         }
-        let Some(frames) = self.frames.as_mut() else {
-            return Err(TaskError::failed("stepped before start"));
-        };
-        let Some(frame) = frames.take_new() else {
+        let Some(frame) = self.frames.take_new() else {
             return Ok(());
         };
         let Some(placement) = self.placement(&frame.value, frame.stamp.as_secs_f64())? else {
@@ -587,21 +573,42 @@ mod tests {
     use super::*;
     use crate::bus::Bus;
     use crate::clock::Timestamp;
-    use crate::config::Knob;
+    use crate::config::{Knob, TaskConfig};
     use crate::inference::InferenceError;
-    use crate::task::{MissionHealth, QosLevel};
-
-    fn params(text: &str) -> Params {
-        parse_params(&toml::from_str(text).unwrap()).unwrap()
-    }
+    use crate::task::{parse_params, MissionHealth, QosLevel};
 
     fn task(text: &str) -> Result<HazardCnnTask, TaskError> {
-        HazardCnnTask::new(
-            params(text),
-            None,
-            Resource::Gpu,
-            Arc::new(AtomicBool::new(false)),
-        )
+        task_on(&Bus::new(), text, None)
+    }
+
+    /// The task on `bus`, as the registry builds it: its params `text`, its config in
+    /// `config_dir`, on the GPU.
+    fn task_on(
+        bus: &Bus,
+        text: &str,
+        config_dir: Option<&std::path::Path>,
+    ) -> Result<HazardCnnTask, TaskError> {
+        let config = TaskConfig {
+            name: "hazard".into(),
+            plugin: PLUGIN_NAME.into(),
+            resource: Resource::Gpu,
+            cores: vec![],
+            phases: vec!["tracking".into()],
+            weight: 1.0,
+            knob: Knob::RateFps,
+            levels: vec![1.0],
+            utility: vec![1.0],
+            restart: None,
+            params: toml::from_str(text).unwrap(),
+            config_dir: config_dir.map(std::path::Path::to_path_buf),
+        };
+        super::super::build_for_test(&config, bus, |build| {
+            HazardCnnTask::new(
+                build.parse_params()?,
+                build,
+                Arc::new(AtomicBool::new(false)),
+            )
+        })
     }
 
     /// What the scheduler gives the task: a bus, the mission's health and its 1 fps level.
@@ -626,7 +633,7 @@ mod tests {
         }
 
         fn context(&self, now: Timestamp) -> TaskContext<'_> {
-            TaskContext::new("hazard", now, &self.level, &self.bus, &self.health, 1)
+            TaskContext::new("hazard", now, &self.level, &self.health, 1)
         }
     }
 
@@ -701,13 +708,7 @@ mod tests {
         );
         // Relative paths resolve against the config's folder.
         std::fs::copy(shipped_model_path(), dir.path().join("mine.onnx")).unwrap();
-        let mut hazard = HazardCnnTask::new(
-            params("model = \"mine.onnx\""),
-            Some(dir.path()),
-            Resource::Cpu,
-            Arc::new(AtomicBool::new(false)),
-        )
-        .unwrap();
+        let mut hazard = task_on(&Bus::new(), "model = \"mine.onnx\"", Some(dir.path())).unwrap();
         start(&mut hazard).unwrap();
     }
 
@@ -824,9 +825,11 @@ mod tests {
         let fly = |pipelined: bool| {
             let harness = Harness::new();
             let bus = &harness.bus;
-            let mut hazard = task(&format!(
-                "confidence_threshold = 0.02\npipelined = {pipelined}"
-            ))
+            let mut hazard = task_on(
+                bus,
+                &format!("confidence_threshold = 0.02\npipelined = {pipelined}"),
+                None,
+            )
             .unwrap();
             hazard.start(&mut harness.context(Timestamp::ZERO)).unwrap();
             let frames = bus.publisher::<CameraFrame>(CAMERA_FRAME).unwrap();
@@ -874,7 +877,7 @@ mod tests {
     fn frames_below_its_height_are_not_looked_at() {
         let harness = Harness::new();
         let bus = &harness.bus;
-        let mut hazard = task("").unwrap();
+        let mut hazard = task_on(bus, "", None).unwrap();
         hazard.start(&mut harness.context(Timestamp::ZERO)).unwrap();
         let frames = bus.publisher::<CameraFrame>(CAMERA_FRAME).unwrap();
         let vehicle = bus.publisher::<VehicleState>(VEHICLE_STATE).unwrap();

@@ -44,7 +44,7 @@ use std::collections::VecDeque;
 
 use crate::bus::{Publisher, Subscriber};
 use crate::registry::{PluginRegistry, RegistryError};
-use crate::task::{Task, TaskContext, TaskError};
+use crate::task::{Task, TaskBuild, TaskContext, TaskError};
 use crate::topics::{
     CameraFrame, DepthFrame, HybridTrackingStatus, MarkerObservation, RelativeState, VehicleState,
     CAMERA_FRAME, DEPTH_FRAME, HYBRID_TRACKING_STATUS, LANDING_MARKER, RELATIVE_STATE,
@@ -272,8 +272,8 @@ pub enum AltitudeFallback {
 }
 
 pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
-    super::register_builtin(registry, PLUGIN_NAME, |params: Params| {
-        Ok(HybridTrackingTask::new(params)?)
+    super::register_builtin(registry, PLUGIN_NAME, |params: Params, build| {
+        Ok(HybridTrackingTask::new(params, Ports::take(build)?)?)
     })
 }
 
@@ -320,16 +320,34 @@ pub struct HybridTrackingTask {
     status: HybridTrackingStatus,
     /// Fallbacks in flight (the ones worth a warning).
     airborne_fallbacks: u64,
-    vehicle_sub: Option<Subscriber<VehicleState>>,
-    frame_sub: Option<Subscriber<CameraFrame>>,
-    depth_sub: Option<Subscriber<DepthFrame>>,
-    marker_sub: Option<Subscriber<MarkerObservation>>,
-    output: Option<Publisher<RelativeState>>,
-    status_output: Option<Publisher<HybridTrackingStatus>>,
+    ports: Ports,
+}
+
+/// The task's ends on the bus.
+struct Ports {
+    vehicle: Subscriber<VehicleState>,
+    frames: Subscriber<CameraFrame>,
+    depths: Subscriber<DepthFrame>,
+    markers: Subscriber<MarkerObservation>,
+    output: Publisher<RelativeState>,
+    status: Publisher<HybridTrackingStatus>,
+}
+
+impl Ports {
+    fn take(build: &TaskBuild<'_>) -> Result<Self, TaskError> {
+        Ok(Ports {
+            vehicle: build.input(VEHICLE_STATE)?,
+            frames: build.input(CAMERA_FRAME)?,
+            depths: build.input(DEPTH_FRAME)?,
+            markers: build.input(LANDING_MARKER)?,
+            output: build.output(RELATIVE_STATE)?,
+            status: build.output(HYBRID_TRACKING_STATUS)?,
+        })
+    }
 }
 
 impl HybridTrackingTask {
-    fn new(params: Params) -> Result<Self, HybridTrackingParamsError> {
+    fn new(params: Params, ports: Ports) -> Result<Self, HybridTrackingParamsError> {
         let value = |name, value: f64, why| HybridTrackingParamsError::Value { name, value, why };
         let camera = PinholeCamera::from_fov(
             params.image_width_px,
@@ -454,12 +472,7 @@ impl HybridTrackingTask {
             platform_velocity_ned_m_s: None,
             status: HybridTrackingStatus::default(),
             airborne_fallbacks: 0,
-            vehicle_sub: None,
-            frame_sub: None,
-            depth_sub: None,
-            marker_sub: None,
-            output: None,
-            status_output: None,
+            ports,
         })
     }
 
@@ -825,12 +838,10 @@ impl HybridTrackingTask {
     }
 
     fn publish_status(&self) {
-        if let Some(output) = &self.status_output {
-            let stamp = crate::clock::Timestamp::from_secs_f64(
-                self.previous.as_ref().map_or(0.0, |p| p.time_s),
-            );
-            output.publish(stamp, self.status.clone());
-        }
+        let stamp = crate::clock::Timestamp::from_secs_f64(
+            self.previous.as_ref().map_or(0.0, |p| p.time_s),
+        );
+        self.ports.status.publish(stamp, self.status.clone());
     }
 }
 
@@ -887,25 +898,14 @@ fn mask_out(features: &mut FrameFeatures, bbox: &PixelBox, grow: f64) {
 }
 
 impl Task for HybridTrackingTask {
-    fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        self.vehicle_sub = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
-        self.frame_sub = Some(ctx.bus().subscriber(CAMERA_FRAME)?);
-        self.depth_sub = Some(ctx.bus().subscriber(DEPTH_FRAME)?);
-        self.marker_sub = Some(ctx.bus().subscriber(LANDING_MARKER)?);
-        self.output = Some(ctx.bus().publisher(RELATIVE_STATE)?);
-        self.status_output = Some(ctx.bus().publisher(HYBRID_TRACKING_STATUS)?);
-        Ok(())
-    }
-
     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        let (Some(vehicle), Some(frames), Some(depths), Some(markers)) = (
-            self.vehicle_sub.as_mut(),
-            self.frame_sub.as_mut(),
-            self.depth_sub.as_mut(),
-            self.marker_sub.as_mut(),
-        ) else {
-            return Err(TaskError::failed("stepped before start"));
-        };
+        let Ports {
+            vehicle,
+            frames,
+            depths,
+            markers,
+            ..
+        } = &mut self.ports;
         let now_s = ctx.now().as_secs_f64();
         if let Some(message) = vehicle.take_new() {
             self.states
@@ -936,9 +936,10 @@ impl Task for HybridTrackingTask {
             let time_s = message.stamp.as_secs_f64();
             self.process(ctx, &message.value, time_s)?;
         }
-        let (Some(fix), Some(output)) = (self.fix, self.output.as_ref()) else {
+        let Some(fix) = self.fix else {
             return Ok(());
         };
+        let output = &self.ports.output;
         // Carried forward from the capture: the UAV moved, the platform moved.
         let elapsed_s = (now_s - fix.time_s).max(0.0);
         let platform = self
@@ -976,9 +977,9 @@ mod tests {
 
     use super::*;
     use crate::bus::Publisher;
+    use crate::catalog::{PluginInfo, Port};
     use crate::config::{Knob, Resource, TaskConfig};
     use crate::scheduler::SchedulerBuilder;
-    use crate::task::parse_params;
     use algorithms::vision::camera::CameraPose;
     use algorithms::vision::image::{DepthImage, GrayImage};
     use algorithms::vision::landing_marker::{CentreSource, LandingMarkerLayout};
@@ -1064,32 +1065,38 @@ mod tests {
         markers: Option<Publisher<MarkerObservation>>,
     }
 
+    /// The test world's plugin: it publishes what the mission would, and the detector's
+    /// observations when the world scripts them.
+    const WORLD: PluginInfo = PluginInfo {
+        outputs: &[
+            Port::of(VEHICLE_STATE),
+            Port::of(CAMERA_FRAME),
+            Port::of(DEPTH_FRAME),
+            Port::of(LANDING_MARKER),
+        ],
+        ..PluginInfo::user("test_world")
+    };
+
     impl World {
-        fn new(config: WorldConfig) -> Self {
-            Self {
+        fn new(config: WorldConfig, build: &TaskBuild<'_>) -> Result<Self, TaskError> {
+            let markers = match config.observations {
+                Some(_) => Some(build.output(LANDING_MARKER)?),
+                None => None,
+            };
+            Ok(Self {
                 config,
                 frame_index: 0,
                 camera: PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap(),
                 depth_camera: PinholeCamera::from_fov(160, 120, 60f64.to_radians()).unwrap(),
-                state: None,
-                frames: None,
-                depths: None,
-                markers: None,
-            }
+                state: Some(build.output(VEHICLE_STATE)?),
+                frames: Some(build.output(CAMERA_FRAME)?),
+                depths: Some(build.output(DEPTH_FRAME)?),
+                markers,
+            })
         }
     }
 
     impl Task for World {
-        fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-            self.state = Some(ctx.bus().publisher(VEHICLE_STATE)?);
-            self.frames = Some(ctx.bus().publisher(CAMERA_FRAME)?);
-            self.depths = Some(ctx.bus().publisher(DEPTH_FRAME)?);
-            if self.config.observations.is_some() {
-                self.markers = Some(ctx.bus().publisher(LANDING_MARKER)?);
-            }
-            Ok(())
-        }
-
         fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
             let c = &self.config;
             let now = ctx.now();
@@ -1204,8 +1211,8 @@ mod tests {
         let for_factory = world.clone();
         let detector = world.observations.is_none();
         registry
-            .register("test_world", move |_, _| {
-                Ok(Box::new(World::new(for_factory.clone())))
+            .register_plugin(WORLD, move |build| {
+                Ok(Box::new(World::new(for_factory.clone(), build)?))
             })
             .unwrap();
         let world_task = task_config("world", "test_world", Knob::RateFps, 10.0, "");
@@ -1403,9 +1410,9 @@ mod tests {
     #[test]
     fn bad_params_are_named_errors() {
         let build = |text: &str| -> Result<HybridTrackingTask, TaskError> {
-            let table: toml::Table = toml::from_str(text).unwrap();
-            let params: Params = parse_params(&table)?;
-            Ok(HybridTrackingTask::new(params)?)
+            super::super::build_from_params(PLUGIN_NAME, text, |params: Params, build| {
+                Ok(HybridTrackingTask::new(params, Ports::take(build)?)?)
+            })
         };
         assert!(build("").is_ok());
         for (text, named) in [

@@ -4,7 +4,7 @@
 
 use crate::bus::{Publisher, Subscriber};
 use crate::registry::{PluginRegistry, RegistryError};
-use crate::task::{Task, TaskContext, TaskError};
+use crate::task::{Task, TaskBuild, TaskContext, TaskError};
 use crate::topics::{
     MarkerObservation, RelativeState, VehicleState, LANDING_MARKER, RELATIVE_STATE, VEHICLE_STATE,
 };
@@ -88,13 +88,13 @@ struct TrackerTask {
     last_fix_time_s: Option<f64>,
     /// The vehicle's recent attitude and height, to project a fix as at its capture.
     attitude_history: AttitudeHistory,
-    vehicle: Option<Subscriber<VehicleState>>,
-    markers: Option<Subscriber<MarkerObservation>>,
-    output: Option<Publisher<RelativeState>>,
+    vehicle: Subscriber<VehicleState>,
+    markers: Subscriber<MarkerObservation>,
+    output: Publisher<RelativeState>,
 }
 
 impl TrackerTask {
-    fn new(params: Params) -> Result<Self, TaskError> {
+    fn new(params: Params, build: &TaskBuild<'_>) -> Result<Self, TaskError> {
         let bad = |e: &dyn std::fmt::Display| TaskError::Params(e.to_string());
         let fix_noise = FixNoise::new(params.fix_std_m, params.fix_angle_std_deg.to_radians())
             .map_err(|e| bad(&e))?;
@@ -129,29 +129,16 @@ impl TrackerTask {
             .map_err(|e| bad(&e))?,
             last_fix_time_s: None,
             attitude_history: AttitudeHistory::new(ATTITUDE_HISTORY_S),
-            vehicle: None,
-            markers: None,
-            output: None,
+            vehicle: build.input(VEHICLE_STATE)?,
+            markers: build.input(LANDING_MARKER)?,
+            output: build.output(RELATIVE_STATE)?,
         })
     }
 }
 
 impl Task for TrackerTask {
-    fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        self.vehicle = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
-        self.markers = Some(ctx.bus().subscriber(LANDING_MARKER)?);
-        self.output = Some(ctx.bus().publisher(RELATIVE_STATE)?);
-        Ok(())
-    }
-
     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        let (Some(vehicle), Some(markers), Some(output)) = (
-            self.vehicle.as_mut(),
-            self.markers.as_mut(),
-            self.output.as_ref(),
-        ) else {
-            return Err(TaskError::failed("stepped before start"));
-        };
+        let (vehicle, markers, output) = (&mut self.vehicle, &mut self.markers, &self.output);
         // Without the vehicle's attitude and height there is nothing to project with.
         let Some(latest) = vehicle.latest() else {
             return Ok(());
@@ -284,8 +271,7 @@ mod tests {
     use super::*;
 
     fn task(params: &str) -> Result<TrackerTask, TaskError> {
-        let table: toml::Table = toml::from_str(params).unwrap();
-        TrackerTask::new(crate::task::parse_params(&table)?)
+        super::super::build_from_params(PLUGIN_NAME, params, TrackerTask::new)
     }
 
     #[test]

@@ -10,7 +10,7 @@
 use crate::bus::{Publisher, Subscriber};
 use crate::registry::{PluginRegistry, RegistryError};
 use crate::task::QosLevel;
-use crate::task::{Task, TaskContext, TaskError};
+use crate::task::{Task, TaskBuild, TaskContext, TaskError};
 use crate::topics::{
     LandingSetpoint, MissionPhase, RelativeState, VehicleState, LANDING_SETPOINT, MISSION_PHASE,
     RELATIVE_STATE, VEHICLE_STATE,
@@ -202,14 +202,14 @@ struct GuidanceTask {
     camera_mount: CameraMount,
     max_fix_age_s: f64,
     max_vision_gap_s: f64,
-    vehicle: Option<Subscriber<VehicleState>>,
-    phase: Option<Subscriber<MissionPhase>>,
-    relative: Option<Subscriber<RelativeState>>,
-    output: Option<Publisher<LandingSetpoint>>,
+    vehicle: Subscriber<VehicleState>,
+    phase: Subscriber<MissionPhase>,
+    relative: Subscriber<RelativeState>,
+    output: Publisher<LandingSetpoint>,
 }
 
 impl GuidanceTask {
-    fn new(params: Params) -> Result<Self, TaskError> {
+    fn new(params: Params, build: &TaskBuild<'_>) -> Result<Self, TaskError> {
         let defaults = LandingConfig::default();
         let controller = match params.controller {
             ControllerKind::Pid => HorizontalController::Pid,
@@ -278,10 +278,10 @@ impl GuidanceTask {
             camera_mount: params.camera_mount,
             max_fix_age_s: params.max_fix_age_s,
             max_vision_gap_s: params.max_vision_gap_s,
-            vehicle: None,
-            phase: None,
-            relative: None,
-            output: None,
+            vehicle: build.input(VEHICLE_STATE)?,
+            phase: build.input(MISSION_PHASE)?,
+            relative: build.input(RELATIVE_STATE)?,
+            output: build.output(LANDING_SETPOINT)?,
         })
     }
 }
@@ -293,22 +293,8 @@ impl Task for GuidanceTask {
             .map_err(|e| TaskError::Params(e.to_string()))
     }
 
-    fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        self.vehicle = Some(ctx.bus().subscriber(VEHICLE_STATE)?);
-        self.phase = Some(ctx.bus().subscriber(MISSION_PHASE)?);
-        self.relative = Some(ctx.bus().subscriber(RELATIVE_STATE)?);
-        self.output = Some(ctx.bus().publisher(LANDING_SETPOINT)?);
-        Ok(())
-    }
-
     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        let (Some(vehicle), Some(relative), Some(output)) = (
-            self.vehicle.as_mut(),
-            self.relative.as_mut(),
-            self.output.as_ref(),
-        ) else {
-            return Err(TaskError::failed("stepped before start"));
-        };
+        let (vehicle, relative, output) = (&mut self.vehicle, &mut self.relative, &self.output);
         let Some(state_message) = vehicle.latest() else {
             return Ok(());
         };
@@ -335,8 +321,7 @@ impl Task for GuidanceTask {
             .unwrap_or_else(Vector2::zeros);
         let descent_allowed = self
             .phase
-            .as_mut()
-            .and_then(|phase| phase.latest())
+            .latest()
             // The mission's landing phase (outside a mission, no phase: descend).
             .is_none_or(|phase| phase.value.landing);
         let step = self.controller.step(&LandingInput {
@@ -408,8 +393,7 @@ mod tests {
     use crate::config::Knob;
 
     fn task(params: &str) -> Result<GuidanceTask, TaskError> {
-        let table: toml::Table = toml::from_str(params).unwrap();
-        GuidanceTask::new(crate::task::parse_params(&table)?)
+        super::super::build_from_params(PLUGIN_NAME, params, GuidanceTask::new)
     }
 
     fn mpc_config(task: &GuidanceTask) -> MpcConfig {

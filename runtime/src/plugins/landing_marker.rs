@@ -3,7 +3,7 @@
 
 use crate::bus::{Publisher, Subscriber};
 use crate::registry::{PluginRegistry, RegistryError};
-use crate::task::{Task, TaskContext, TaskError};
+use crate::task::{Task, TaskBuild, TaskContext, TaskError};
 use crate::topics::{CameraFrame, MarkerObservation, CAMERA_FRAME, LANDING_MARKER};
 use algorithms::vision::landing_marker::{
     LandingMarkerConfig, LandingMarkerDetector, LandingMarkerLayout,
@@ -61,12 +61,12 @@ pub struct LandingMarkerTask {
     /// The previous frame, to recognise a frozen camera: a live sensor's noise never repeats a
     /// frame bit for bit.
     previous_frame: Option<CameraFrame>,
-    frames: Option<Subscriber<CameraFrame>>,
-    output: Option<Publisher<MarkerObservation>>,
+    frames: Subscriber<CameraFrame>,
+    output: Publisher<MarkerObservation>,
 }
 
 impl LandingMarkerTask {
-    fn new(params: Params) -> Result<Self, TaskError> {
+    fn new(params: Params, build: &TaskBuild<'_>) -> Result<Self, TaskError> {
         let layout = params.layout.unwrap_or_default();
         if layout.nfold_order != params.nfold_order {
             return Err(TaskError::Params(format!(
@@ -92,23 +92,15 @@ impl LandingMarkerTask {
             roi_half_size_px: params.roi_half_size_px,
             last_seen: None,
             previous_frame: None,
-            frames: None,
-            output: None,
+            frames: build.input(CAMERA_FRAME)?,
+            output: build.output(LANDING_MARKER)?,
         })
     }
 }
 
 impl Task for LandingMarkerTask {
-    fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        self.frames = Some(ctx.bus().subscriber::<CameraFrame>(CAMERA_FRAME)?);
-        self.output = Some(ctx.bus().publisher::<MarkerObservation>(LANDING_MARKER)?);
-        Ok(())
-    }
-
     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-        let (Some(frames), Some(output)) = (self.frames.as_mut(), self.output.as_ref()) else {
-            return Err(TaskError::failed("stepped before start"));
-        };
+        let (frames, output) = (&mut self.frames, &self.output);
         // Only the newest frame matters; none new since the last step means nothing to do.
         let Some(message) = frames.take_new() else {
             return Ok(());
@@ -181,6 +173,7 @@ impl Task for LandingMarkerTask {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::catalog::{PluginInfo, Port};
     use crate::config::{Knob, Resource, TaskConfig};
     use crate::scheduler::SchedulerBuilder;
     use crate::topics::CameraFrame;
@@ -196,15 +189,10 @@ mod tests {
     struct RenderedCamera {
         frame_index: u64,
         truth: Arc<Mutex<Vec<[f64; 2]>>>,
-        output: Option<Publisher<CameraFrame>>,
+        output: Publisher<CameraFrame>,
     }
 
     impl Task for RenderedCamera {
-        fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-            self.output = Some(ctx.bus().publisher(CAMERA_FRAME)?);
-            Ok(())
-        }
-
         fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
             let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
             let pose = CameraPose::downward(Vector3::new(0.0, 0.0, -4.0), 0.05, -0.04, 0.3);
@@ -222,7 +210,7 @@ mod tests {
                 frame_index: self.frame_index,
                 image: Arc::new(image),
             };
-            self.output.as_ref().unwrap().publish(ctx.now(), frame);
+            self.output.publish(ctx.now(), frame);
             self.frame_index += 1;
             Ok(())
         }
@@ -250,12 +238,16 @@ mod tests {
         let mut registry = crate::plugins::builtin_registry().unwrap();
         let truth = Arc::new(Mutex::new(Vec::new()));
         let camera_truth = truth.clone();
+        let info = PluginInfo {
+            outputs: const { &[Port::of(CAMERA_FRAME)] },
+            ..PluginInfo::user("rendered_camera")
+        };
         registry
-            .register("rendered_camera", move |_, _| {
+            .register_plugin(info, move |build| {
                 Ok(Box::new(RenderedCamera {
                     frame_index: 0,
                     truth: camera_truth.clone(),
-                    output: None,
+                    output: build.output(CAMERA_FRAME)?,
                 }))
             })
             .unwrap();

@@ -9,15 +9,15 @@ pub mod landing_marker;
 
 use crate::catalog::BUILTIN_PLUGINS;
 use crate::registry::{PluginRegistry, RegistryError};
-use crate::task::{parse_params, Task, TaskError};
+use crate::task::{Task, TaskBuild, TaskError};
 use serde::de::DeserializeOwned;
 
-/// Registers the built-in plugin `name` with its catalogue entry (the resources and knobs it
-/// accepts); each task is made by `make` from its parsed `[task.params]`.
+/// Registers the built-in plugin `name` with its catalogue entry (the resources, knobs and ports
+/// it has); each task is made by `make` from its parsed `[task.params]` and its ports.
 fn register_builtin<P, T>(
     registry: &mut PluginRegistry,
     name: &'static str,
-    make: fn(P) -> Result<T, TaskError>,
+    make: fn(P, &TaskBuild<'_>) -> Result<T, TaskError>,
 ) -> Result<(), RegistryError>
 where
     P: DeserializeOwned + 'static,
@@ -28,10 +28,52 @@ where
         .find(|p| p.name == name)
         .cloned()
         .expect("the catalogue lists every built-in plugin");
-    registry.register_plugin(info, move |params, _config| {
-        Ok(Box::new(make(parse_params(params)?)?) as Box<dyn Task>)
+    registry.register_plugin(info, move |build| {
+        Ok(Box::new(make(build.parse_params()?, build)?) as Box<dyn Task>)
     })?;
     Ok(())
+}
+
+/// Builds a built-in plugin's task for `config` on `bus`, as the registry would (a plugin's
+/// tests, which look inside the concrete task).
+#[cfg(test)]
+pub(crate) fn build_for_test<T>(
+    config: &crate::config::TaskConfig,
+    bus: &crate::bus::Bus,
+    make: impl FnOnce(&TaskBuild<'_>) -> Result<T, TaskError>,
+) -> Result<T, TaskError> {
+    let info = BUILTIN_PLUGINS
+        .iter()
+        .find(|p| p.name == config.plugin)
+        .expect("a built-in plugin");
+    make(&TaskBuild::new(&config.params, config, info, bus))
+}
+
+/// Builds a built-in plugin's task from its params `text` on a bus of its own, as the registry
+/// would (a plugin's tests of its params).
+#[cfg(test)]
+pub(crate) fn build_from_params<P: DeserializeOwned, T>(
+    plugin: &str,
+    text: &str,
+    make: impl FnOnce(P, &TaskBuild<'_>) -> Result<T, TaskError>,
+) -> Result<T, TaskError> {
+    let config = crate::config::TaskConfig {
+        name: plugin.into(),
+        plugin: plugin.into(),
+        resource: crate::config::Resource::Cpu,
+        cores: vec![],
+        phases: vec!["tracking".into()],
+        weight: 1.0,
+        knob: crate::config::Knob::PeriodMs,
+        levels: vec![20.0],
+        utility: vec![1.0],
+        restart: None,
+        params: toml::from_str(text).expect("test params are TOML"),
+        config_dir: None,
+    };
+    build_for_test(&config, &crate::bus::Bus::new(), |build| {
+        make(build.parse_params()?, build)
+    })
 }
 
 /// A registry with every built-in plugin; users add their own to it.
@@ -54,9 +96,10 @@ mod tests {
     use super::builtin_registry;
     use crate::bus::Publisher;
     use crate::catalog::PluginCatalog;
+    use crate::catalog::{PluginInfo, Port};
     use crate::config::load_str;
     use crate::scheduler::SchedulerBuilder;
-    use crate::task::{Task, TaskContext, TaskError};
+    use crate::task::{Task, TaskBuild, TaskContext, TaskError};
     use crate::topics::{
         CameraFrame, LandingSetpoint, MissionPhase, RelativeState, VehicleState, CAMERA_FRAME,
         LANDING_SETPOINT, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
@@ -91,12 +134,18 @@ mod tests {
         /// A few frames differing only in sensor noise: a live camera never repeats a frame.
         noisy_frames: Vec<Arc<algorithms::vision::image::GrayImage>>,
         frame_index: u64,
-        frames: Option<Publisher<CameraFrame>>,
-        state: Option<Publisher<VehicleState>>,
+        frames: Publisher<CameraFrame>,
+        state: Publisher<VehicleState>,
     }
 
+    /// The hovering vehicle's plugin: it publishes what the mission would.
+    const HOVERING_VEHICLE: PluginInfo = PluginInfo {
+        outputs: &[Port::of(CAMERA_FRAME), Port::of(VEHICLE_STATE)],
+        ..PluginInfo::user("hovering_vehicle")
+    };
+
     impl HoveringVehicle {
-        fn new(body_camera: bool) -> Self {
+        fn new(body_camera: bool, build: &TaskBuild<'_>) -> Result<Self, TaskError> {
             let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap();
             let pose = CameraPose::downward(
                 Vector3::new(0.0, 0.0, -HEIGHT_M),
@@ -119,23 +168,17 @@ mod tests {
                     Arc::new(apply_effects(&frame, &effects).unwrap())
                 })
                 .collect();
-            Self {
+            Ok(Self {
                 body_camera,
                 noisy_frames,
                 frame_index: 0,
-                frames: None,
-                state: None,
-            }
+                frames: build.output(CAMERA_FRAME)?,
+                state: build.output(VEHICLE_STATE)?,
+            })
         }
     }
 
     impl Task for HoveringVehicle {
-        fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-            self.frames = Some(ctx.bus().publisher(CAMERA_FRAME)?);
-            self.state = Some(ctx.bus().publisher(VEHICLE_STATE)?);
-            Ok(())
-        }
-
         fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
             let camera = Attitude::new(ROLL_RAD, PITCH_RAD, YAW_RAD);
             let state = VehicleState {
@@ -152,13 +195,13 @@ mod tests {
                 gimbal_attitude: (!self.body_camera).then_some(camera),
                 offboard: true,
             };
-            self.state.as_ref().unwrap().publish(ctx.now(), state);
+            self.state.publish(ctx.now(), state);
             let frame = CameraFrame {
                 vehicle_at_capture: None,
                 frame_index: self.frame_index,
                 image: self.noisy_frames[self.frame_index as usize % 3].clone(),
             };
-            self.frames.as_ref().unwrap().publish(ctx.now(), frame);
+            self.frames.publish(ctx.now(), frame);
             self.frame_index += 1;
             Ok(())
         }
@@ -177,8 +220,8 @@ mod tests {
     ) {
         let mut registry = builtin_registry().unwrap();
         registry
-            .register("hovering_vehicle", move |_, _| {
-                Ok(Box::new(HoveringVehicle::new(body_camera)))
+            .register_plugin(HOVERING_VEHICLE, move |build| {
+                Ok(Box::new(HoveringVehicle::new(body_camera, build)?))
             })
             .unwrap();
         let reference = include_str!("../../../qos.toml");
@@ -271,8 +314,8 @@ mod tests {
     fn descent_waits_for_the_landing_phase(controller: &str) {
         let mut registry = builtin_registry().unwrap();
         registry
-            .register("hovering_vehicle", |_, _| {
-                Ok(Box::new(HoveringVehicle::new(false)))
+            .register_plugin(HOVERING_VEHICLE, |build| {
+                Ok(Box::new(HoveringVehicle::new(false, build)?))
             })
             .unwrap();
         let reference = include_str!("../../../qos.toml");

@@ -104,16 +104,16 @@ fn setup() -> (MissionConfig, PluginRegistry, Counters) {
     let mut registry = PluginRegistry::new();
     let for_factory = counters.clone();
     registry
-        .register("busy", move |_params, config| {
+        .register("busy", move |build| {
             Ok(Box::new(Busy {
-                steps: for_factory[&config.name].clone(),
+                steps: for_factory[&build.config().name].clone(),
             }) as Box<dyn Task>)
         })
         .unwrap();
     let mut catalog_registry = PluginRegistry::new();
     for name in ["busy", "absent_plugin"] {
         catalog_registry
-            .register(name, |_, _| Err(TaskError::failed("catalogue only")))
+            .register(name, |_| Err(TaskError::failed("catalogue only")))
             .unwrap();
     }
     let config = load_str(CONFIG, None, &catalog_registry.catalog()).unwrap_or_else(|d| {

@@ -4,7 +4,7 @@
 
 use super::channels::{self as ch, ChannelSpec, MavlinkBatch, MavlinkRecord, StepRecord};
 use super::{ConfigFile, RecordError, RecordingHeader, HEADER_METADATA};
-use crate::bus::{Bus, Message};
+use crate::bus::{Bus, Message, Topic};
 use crate::clock::Timestamp;
 use crate::link::LinkCapture;
 use crate::mission::GovernorDecision;
@@ -226,14 +226,14 @@ impl Recorder {
     fn tap<T: Send + Sync + 'static>(
         &self,
         bus: &Bus,
-        topic: &str,
+        topic: Topic<T>,
         encode: impl Fn(&Message<T>) -> Vec<Encoded> + Send + Sync + 'static,
     ) -> Result<(), crate::bus::BusError> {
         let Some(jobs) = self.jobs.clone() else {
             return Ok(());
         };
         let encode = Arc::new(encode);
-        bus.tap::<T>(
+        bus.tap(
             topic,
             Box::new(move |message: &Arc<Message<T>>| {
                 let (message, encode) = (message.clone(), encode.clone());

@@ -12,21 +12,30 @@
 //! Build either from a [`SchedulerBuilder`]:
 //!
 //! ```
+//! use runtime::bus::{Publisher, Topic};
+//! use runtime::catalog::{PluginInfo, Port};
 //! use runtime::registry::PluginRegistry;
 //! use runtime::scheduler::SchedulerBuilder;
 //! use runtime::task::{Task, TaskContext, TaskError};
 //! # use runtime::config::{Knob, Resource, TaskConfig};
 //!
-//! struct Ping;
+//! const PING: Topic<u64> = Topic::new("ping", "u64");
+//!
+//! struct Ping {
+//!     output: Publisher<u64>,
+//! }
 //! impl Task for Ping {
 //!     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
-//!         ctx.bus().publisher::<u64>("ping")?.publish(ctx.now(), ctx.activation());
+//!         self.output.publish(ctx.now(), ctx.activation());
 //!         Ok(())
 //!     }
 //! }
 //!
+//! let info = PluginInfo { outputs: const { &[Port::of(PING)] }, ..PluginInfo::user("ping") };
 //! let mut registry = PluginRegistry::new();
-//! registry.register("ping", |_params, _config| Ok(Box::new(Ping))).unwrap();
+//! registry
+//!     .register_plugin(info, |build| Ok(Box::new(Ping { output: build.output(PING)? })))
+//!     .unwrap();
 //! # let config = TaskConfig { name: "ping".into(), plugin: "ping".into(), resource: Resource::Cpu,
 //! #     cores: vec![], phases: vec!["tracking".into()], weight: 1.0, knob: Knob::PeriodMs,
 //! #     levels: vec![100.0, 20.0], utility: vec![0.5, 1.0], restart: None, params: Default::default(),
@@ -55,7 +64,7 @@ pub use virtual_time::{TraceEvent, TraceKind, VirtualScheduler};
 use crate::bus::Bus;
 use crate::clock::{duration_to_nanos, ClockError, Timestamp};
 use crate::config::{Resource, TaskConfig};
-use crate::registry::{create_with, PluginRegistry, RegistryError, TaskFactory};
+use crate::registry::{PluginRegistry, RegistryError, TaskFactory};
 use crate::task::{
     panic_message, LevelError, MissionHealth, QosLevel, Task, TaskContext, TaskHealth,
 };
@@ -295,7 +304,7 @@ impl<'r> SchedulerBuilder<'r> {
                 Resource::Gpu => Some(resources.gpu().claim(&config.name)?),
                 Resource::Cpu => None,
             };
-            let instance = create_with(&factory, &params, config)?;
+            let instance = factory.create(&params, config, &bus)?;
             let seed = task_seed(self.seed, index);
             let period_ms = levels[level].period_ms;
             runners.push(TaskRunner {
@@ -491,15 +500,8 @@ impl TaskRunner {
     /// `set_qos` then `start`, with panics caught.
     fn start_instance(&mut self, instance: &mut dyn Task, now: Timestamp) -> Result<(), String> {
         let level = &self.levels[self.level];
-        let mut ctx = TaskContext::new(
-            &self.config.name,
-            now,
-            level,
-            &self.bus,
-            &self.health,
-            self.seed,
-        )
-        .with_activation(self.activations);
+        let mut ctx = TaskContext::new(&self.config.name, now, level, &self.health, self.seed)
+            .with_activation(self.activations);
         let result = catch_unwind(AssertUnwindSafe(|| {
             instance.set_qos(level)?;
             instance.start(&mut ctx)
@@ -517,7 +519,9 @@ impl TaskRunner {
             self.restarts += 1;
             lock(&self.stats).restarts += 1;
             report.restarted = true;
-            let created = create_with(&self.factory, &self.params, &self.config)
+            let created = self
+                .factory
+                .create(&self.params, &self.config, &self.bus)
                 .map_err(|error| error.to_string());
             let started = created.and_then(|mut instance| {
                 self.start_instance(instance.as_mut(), now)
@@ -542,7 +546,6 @@ impl TaskRunner {
             &self.config.name,
             now,
             &self.levels[self.level],
-            &self.bus,
             &self.health,
             self.seed,
         )

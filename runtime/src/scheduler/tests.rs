@@ -1,10 +1,10 @@
 //! Scheduler behaviour, in virtual and real time, with small test-only tasks.
 
 use super::*;
-use crate::bus::{Message, QueueSpec, TopicInfo};
-use crate::catalog::{PluginCatalog, BUILTIN_PLUGINS};
+use crate::bus::{Message, QueueSpec, Topic, TopicInfo};
+use crate::catalog::{PluginCatalog, PluginInfo, Port, BUILTIN_PLUGINS};
 use crate::config::{load_str, Knob, MissionConfig};
-use crate::task::{parse_params, TaskError};
+use crate::task::{TaskBuild, TaskError};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
@@ -115,9 +115,9 @@ fn probes() -> Probes {
     let mut registry = PluginRegistry::new();
     let factory = {
         let (log, stops) = (log.clone(), stops.clone());
-        move |params: &toml::Table, _config: &TaskConfig| -> Result<Box<dyn Task>, TaskError> {
+        move |build: &TaskBuild<'_>| -> Result<Box<dyn Task>, TaskError> {
             Ok(Box::new(Probe {
-                params: parse_params(params)?,
+                params: build.parse_params()?,
                 steps: 0,
                 log: log.clone(),
                 crashes: crashes.clone(),
@@ -128,7 +128,7 @@ fn probes() -> Probes {
     registry.register("probe", factory).unwrap();
     for info in BUILTIN_PLUGINS {
         registry
-            .register_plugin(info.clone(), |_: &toml::Table, _: &TaskConfig| {
+            .register_plugin(info.clone(), |_: &TaskBuild<'_>| {
                 Ok(Box::new(Idle) as Box<dyn Task>)
             })
             .unwrap();
@@ -185,7 +185,6 @@ struct Observation {
 /// and step costs drawn from measured samples.
 struct Stage {
     rng: SplitMix64,
-    role: &'static str,
     input: Option<crate::bus::Subscriber<Observation>>,
     output: Option<crate::bus::Publisher<Observation>>,
     commands: Option<crate::bus::QueueSender<Observation>>,
@@ -195,22 +194,55 @@ struct Stage {
 
 type Record = Arc<Mutex<Vec<(String, Message<Observation>)>>>;
 
+const MARKER: Topic<Observation> = Topic::new("marker", "Observation");
+const RELATIVE: Topic<Observation> = Topic::new("relative_state", "Observation");
+const SETPOINTS: Topic<Observation> = Topic::new("setpoints", "Observation");
+
+impl Stage {
+    /// The stage's ports for its role: (inputs, outputs).
+    fn ports(role: &str) -> (&'static [Port], &'static [Port]) {
+        match role {
+            "landing_marker" => (&[], const { &[Port::of(MARKER)] }),
+            "kalman_tracker" => (
+                const { &[Port::of(MARKER)] },
+                const { &[Port::of(RELATIVE)] },
+            ),
+            "landing_guidance" => (
+                const { &[Port::of(RELATIVE)] },
+                const { &[Port::of(SETPOINTS)] },
+            ),
+            _ => (const { &[Port::of(SETPOINTS)] }, &[]),
+        }
+    }
+
+    fn new(role: &'static str, record: Record, build: &TaskBuild<'_>) -> Result<Self, TaskError> {
+        let mut stage = Stage {
+            rng: SplitMix64::new(0),
+            input: None,
+            output: None,
+            commands: None,
+            received: None,
+            record,
+        };
+        match role {
+            "landing_marker" => stage.output = Some(build.output(MARKER)?),
+            "kalman_tracker" => {
+                stage.input = Some(build.input(MARKER)?);
+                stage.output = Some(build.output(RELATIVE)?);
+            }
+            "landing_guidance" => {
+                stage.input = Some(build.input(RELATIVE)?);
+                stage.commands = Some(build.queue_output(SETPOINTS, QueueSpec::drop_oldest(4))?);
+            }
+            _ => stage.received = Some(build.queue_input(SETPOINTS, QueueSpec::drop_oldest(4))?),
+        }
+        Ok(stage)
+    }
+}
+
 impl Task for Stage {
     fn start(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
         self.rng = SplitMix64::new(ctx.seed());
-        let bus = ctx.bus();
-        match self.role {
-            "landing_marker" => self.output = Some(bus.publisher("marker")?),
-            "kalman_tracker" => {
-                self.input = Some(bus.subscriber("marker")?);
-                self.output = Some(bus.publisher("relative_state")?);
-            }
-            "landing_guidance" => {
-                self.input = Some(bus.subscriber("relative_state")?);
-                self.commands = Some(bus.queue_sender("setpoints", QueueSpec::drop_oldest(4))?);
-            }
-            _ => self.received = Some(bus.queue_receiver("setpoints", QueueSpec::drop_oldest(4))?),
-        }
         Ok(())
     }
 
@@ -263,21 +295,16 @@ fn replay(seed: u64) -> Replay {
     for info in BUILTIN_PLUGINS {
         let record = record.clone();
         let role = info.name;
+        let (inputs, outputs) = Stage::ports(role);
+        let info = PluginInfo {
+            inputs,
+            outputs,
+            ..info.clone()
+        };
         registry
-            .register_plugin(
-                info.clone(),
-                move |_params: &toml::Table, _: &TaskConfig| {
-                    Ok(Box::new(Stage {
-                        rng: SplitMix64::new(0),
-                        role,
-                        input: None,
-                        output: None,
-                        commands: None,
-                        received: None,
-                        record: record.clone(),
-                    }) as Box<dyn Task>)
-                },
-            )
+            .register_plugin(info, move |build| {
+                Ok(Box::new(Stage::new(role, record.clone(), build)?) as Box<dyn Task>)
+            })
             .unwrap();
     }
     let mut config = reference(&registry.catalog());
