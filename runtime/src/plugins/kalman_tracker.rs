@@ -167,12 +167,12 @@ impl Task for TrackerTask {
         });
         let now_s = ctx.now().as_secs_f64();
         let state_fresh = now_s - latest.stamp.as_secs_f64() <= MAX_STATE_AGE_S;
-        let platform_velocity = self.platform.velocity().map(|p| p.velocity_ned_mps);
+        let platform_velocity = self.platform.velocity().map(|p| p.velocity_ned_m_s);
         if self.tracker.estimate().is_some() {
             let input = MotionInput {
-                uav_velocity_ned_mps: state.velocity_ned_m_s,
-                uav_acceleration_ned_mps2: state.acceleration_ned_m_s2,
-                platform_velocity_ned_mps: platform_velocity.unwrap_or_else(Vector3::zeros),
+                uav_velocity_ned_m_s: state.velocity_ned_m_s,
+                uav_acceleration_ned_m_s2: state.acceleration_ned_m_s2,
+                platform_velocity_ned_m_s: platform_velocity.unwrap_or_else(Vector3::zeros),
             };
             self.tracker
                 .predict(now_s, &input)
@@ -248,7 +248,7 @@ impl Task for TrackerTask {
                                     uav_relative_ned_m: uav_relative,
                                     horizontal_variance_m2: fix_variance_m2,
                                     // As the fix: at the frame's capture.
-                                    uav_velocity_ned_mps: at_capture.velocity_ned_m_s,
+                                    uav_velocity_ned_m_s: at_capture.velocity_ned_m_s,
                                     platform_yaw_rad: None,
                                 });
                             }
@@ -270,7 +270,7 @@ impl Task for TrackerTask {
                 ctx.now(),
                 RelativeState {
                     estimate,
-                    platform_velocity_ned_m_s: self.platform.velocity().map(|p| p.velocity_ned_mps),
+                    platform_velocity_ned_m_s: self.platform.velocity().map(|p| p.velocity_ned_m_s),
                     last_fix_time_s: self.last_fix_time_s,
                 },
             );
