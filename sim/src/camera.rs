@@ -14,8 +14,8 @@
 use std::f64::consts::PI;
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
 
+use algorithms::camera::{self, CameraPose, PinholeCamera, RadialTangential};
 use algorithms::estimation::projection::Attitude;
-use algorithms::vision::camera::{self, CameraPose, PinholeCamera, RadialTangential};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::render::{
     render_rows, ImageEffects, MotionBlur, RenderError, Scene, SplitMix64,

@@ -15,7 +15,7 @@ use std::fmt;
 use std::str::FromStr;
 use std::sync::{Arc, OnceLock};
 
-use algorithms::vision::camera::{CameraPose, PinholeCamera};
+use algorithms::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::landing_marker::{LandingMarkerError, LandingMarkerLayout};
 use algorithms::vision::render::{Patch, Scene, SplitMix64, Texture};
 use nalgebra::Vector3;

@@ -50,12 +50,12 @@ use super::stereo_altitude::{
 use super::velocity_observer::{
     instant_motion, InstantMotion, PixelMotion, VelocityObserver, VelocityObserverConfig,
 };
+use crate::camera::{CameraPose, PinholeCamera};
 use crate::tracking::histogram::ColourHistogram;
 use crate::tracking::iou::PixelBox;
 use crate::tracking::tracker::{
     BoxDetection, MultiTracker, TargetPolicy, TrackerConfig, TrackingError,
 };
-use crate::vision::camera::{CameraPose, PinholeCamera};
 use crate::vision::features::{FeatureConfig, FeatureMatcher, FrameFeatures};
 use crate::vision::homography::{fit_correspondences, HomographyError, RansacConfig};
 use crate::vision::image::{DepthImage, GrayImage};

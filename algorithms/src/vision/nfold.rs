@@ -1123,7 +1123,7 @@ impl SectorStats {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vision::camera::{CameraPose, PinholeCamera};
+    use crate::camera::{CameraPose, PinholeCamera};
     use crate::vision::image::GrayImage;
     use crate::vision::render::{
         render, ImageEffects, MotionBlur, Patch, RenderOptions, Scene, Texture,

@@ -5,7 +5,7 @@
 //! horizontal plane of each patch and of the ground, and the nearest hit's texture gives the
 //! intensity. So the truth is exact: a world point appears where [`true_pixel`] says.
 //!
-//! Conventions (see also [`crate::vision::camera`]):
+//! Conventions (see also [`crate::camera`]):
 //! - World NED, metres. The ground is the plane `down = Scene::ground_down_m` (0 unless given).
 //! - A patch lies on the plane `down = Patch::down_m`, centred at (north_m, east_m), `width_m` along
 //!   its u axis and `height_m` along its v axis. Patch coordinates (u, v) run over [−1, 1]²: u to the
@@ -22,8 +22,8 @@ use std::sync::Arc;
 use nalgebra::{Point3, Vector3};
 use thiserror::Error;
 
-use super::camera::{CameraPose, PinholeCamera};
 use super::image::{DepthImage, FrameError, GrayImage};
+use crate::camera::{CameraPose, PinholeCamera};
 
 /// A scene or option that cannot be rendered as given.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -1378,7 +1378,7 @@ mod tests {
     #[test]
     fn depth_of_flat_ground_matches_the_closed_form_under_a_tilted_camera() {
         let pinhole = PinholeCamera::from_fov(80, 60, 70f64.to_radians()).unwrap();
-        let distorted = pinhole.with_distortion(crate::vision::camera::RadialTangential {
+        let distorted = pinhole.with_distortion(crate::camera::RadialTangential {
             k1: -0.12,
             k2: 0.03,
             p1: 0.001,

@@ -18,13 +18,13 @@ use crate::topics::{
     CAMERA_FRAME, DEPTH_FRAME, HYBRID_TRACKING_STATUS, LANDING_MARKER, RELATIVE_STATE,
     VEHICLE_STATE,
 };
+use algorithms::camera::PinholeCamera;
 use algorithms::estimation::hybrid_tracking::{
     FrameInput, HybridTracker, HybridTrackingConfig, HybridTrackingConfigError, VehicleSample,
 };
 use algorithms::estimation::stereo_altitude::{AltitudeFilterConfig, AltitudeWindow};
 use algorithms::estimation::velocity_observer::{Averaging, VelocityObserverConfig};
 use algorithms::tracking::tracker::TrackerConfig;
-use algorithms::vision::camera::PinholeCamera;
 use algorithms::vision::homography::RansacConfig;
 use serde::Deserialize;
 
@@ -404,8 +404,8 @@ mod tests {
     use crate::config::{Knob, Resource, TaskConfig};
     use crate::scheduler::SchedulerBuilder;
     use crate::task::parse_params;
+    use algorithms::camera::CameraPose;
     use algorithms::estimation::projection::Attitude;
-    use algorithms::vision::camera::CameraPose;
     use algorithms::vision::image::DepthImage;
     use algorithms::vision::landing_marker::{
         CentreSource, LandingMarkerLayout, LandingMarkerObservation,

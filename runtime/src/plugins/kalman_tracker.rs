@@ -8,6 +8,7 @@ use crate::task::{Task, TaskContext, TaskError};
 use crate::topics::{
     MarkerObservation, RelativeState, VehicleState, LANDING_MARKER, RELATIVE_STATE, VEHICLE_STATE,
 };
+use algorithms::camera::PinholeCamera;
 use algorithms::estimation::attitude_history::{AttitudeHistory, AttitudeSample};
 use algorithms::estimation::camera_mount::CameraMount;
 use algorithms::estimation::kalman::{FixOutcome, MotionInput, Tracker, TrackerConfig, VisionFix};
@@ -15,7 +16,6 @@ use algorithms::estimation::platform_velocity::{
     PlatformFix, PlatformVelocityConfig, PlatformVelocityEstimator,
 };
 use algorithms::estimation::projection::{pad_relative_to_uav_ned_m, FixNoise};
-use algorithms::vision::camera::PinholeCamera;
 
 /// How far back a frame's capture can be looked up (a frame older than this is projected
 /// with the oldest attitude kept).
