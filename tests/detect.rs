@@ -3,7 +3,7 @@
 mod common;
 use common::qosrt;
 
-use algorithms::vision::camera::{CameraPose, PinholeCamera};
+use algorithms::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::landing_marker::LandingMarkerLayout;
 use algorithms::vision::render::{render, true_pixel, RenderOptions, Scene, Texture};
 use nalgebra::Vector3;

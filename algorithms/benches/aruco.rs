@@ -7,10 +7,10 @@
 
 use std::hint::black_box;
 
+use algorithms::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::aruco::{
     ArucoConfig, ArucoDetector, Dictionary, PixelRect, ThresholdMethod,
 };
-use algorithms::vision::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::render::{render, ImageEffects, Patch, RenderOptions, Scene, Texture};
 use criterion::{criterion_group, criterion_main, Criterion};

@@ -15,9 +15,9 @@ use nalgebra::{DMatrix, DVector, Matrix3, Vector2, Vector3};
 
 fn kalman(c: &mut Criterion) {
     let input = MotionInput {
-        uav_velocity_ned_mps: Vector3::new(3.0, 0.2, 0.0),
-        uav_acceleration_ned_mps2: Vector3::zeros(),
-        platform_velocity_ned_mps: Vector3::new(2.9, 0.1, 0.0),
+        uav_velocity_ned_m_s: Vector3::new(3.0, 0.2, 0.0),
+        uav_acceleration_ned_m_s2: Vector3::zeros(),
+        platform_velocity_ned_m_s: Vector3::new(2.9, 0.1, 0.0),
     };
     let mut group = c.benchmark_group("kalman");
     group.sample_size(30);

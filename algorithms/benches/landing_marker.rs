@@ -6,7 +6,7 @@
 
 use std::hint::black_box;
 
-use algorithms::vision::camera::{CameraPose, PinholeCamera};
+use algorithms::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::landing_marker::{
     LandingMarkerConfig, LandingMarkerDetector, LandingMarkerLayout,

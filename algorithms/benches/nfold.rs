@@ -10,7 +10,7 @@
 use std::hint::black_box;
 use std::time::Duration;
 
-use algorithms::vision::camera::{CameraPose, PinholeCamera};
+use algorithms::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::image::{GrayImage, ImageView};
 use algorithms::vision::nfold::{NfoldConfig, NfoldDetector, Roi};
 use algorithms::vision::render::{render, ImageEffects, Patch, RenderOptions, Scene, Texture};

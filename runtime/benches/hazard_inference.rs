@@ -6,7 +6,7 @@
 //! the board) on the same frames. Then the frame rate the task sustains on one core, and the
 //! hazard CNN's share of the companion power model (qos.toml's profiles) at each of its levels.
 
-use algorithms::vision::camera::{CameraPose, PinholeCamera};
+use algorithms::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::landing_marker::{
     LandingMarkerConfig, LandingMarkerDetector, LandingMarkerLayout,
 };

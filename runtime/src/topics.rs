@@ -212,32 +212,4 @@ topic!(
     HYBRID_TRACKING_STATUS: HybridTrackingStatus = "tracking/hybrid_status"
 );
 
-/// What the hybrid tracker did so far: counts since it started, and the latest frame's sources.
-#[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
-pub struct HybridTrackingStatus {
-    /// Detector observations processed (one per frame the detector looked at).
-    pub frames: u64,
-    /// Frames whose detection the target's track took.
-    pub detections: u64,
-    /// Frames the target's track was bridged by its prediction (no detection matched).
-    pub bridged: u64,
-    /// Frames whose altitude came from the stereo depth (central window + filter).
-    pub depth_altitudes: u64,
-    /// Frames whose altitude fell back to the autopilot's height, and why the last one did.
-    pub depth_fallbacks: u64,
-    pub last_depth_error: Option<String>,
-    /// Frame pairs whose target motion came from the ground's homography (the seed's motion
-    /// compensation), and those, low over the platform, from the UAV's own reported motion.
-    pub homography_motions: u64,
-    pub ego_motions: u64,
-    /// Frame pairs whose motion compensation failed (no homography), and why the last did.
-    pub homography_failures: u64,
-    pub last_homography_error: Option<String>,
-    /// Instantaneous UGV motions fed to the velocity observer, and those left out as faster
-    /// than the UGV can drive.
-    pub velocity_samples: u64,
-    pub velocity_rejected: u64,
-    /// The latest frame's altitude and whether it came from the depth image.
-    pub altitude_m: Option<f64>,
-    pub altitude_from_depth: bool,
-}
+pub use algorithms::estimation::hybrid_tracking::HybridTrackingStatus;

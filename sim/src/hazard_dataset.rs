@@ -14,8 +14,8 @@
 
 use std::f64::consts::PI;
 
+use algorithms::camera::{CameraPose, PinholeCamera};
 use algorithms::estimation::projection::Attitude;
-use algorithms::vision::camera::{CameraPose, PinholeCamera};
 use algorithms::vision::image::GrayImage;
 use algorithms::vision::render::{SplitMix64, Texture};
 use algorithms::vision::yolo::PixelBox;

@@ -16,8 +16,8 @@
 
 use std::sync::Arc;
 
+use algorithms::camera::{CameraError as ModelError, PinholeCamera};
 use algorithms::estimation::projection::Attitude;
-use algorithms::vision::camera::{CameraError as ModelError, PinholeCamera};
 use algorithms::vision::image::DepthImage;
 use algorithms::vision::render::{render_depth, RenderError, SplitMix64};
 use nalgebra::Vector3;

@@ -1,14 +1,14 @@
 //! Where the downward camera points: fixed to the body, or on a gimbal that holds it level.
 //!
 //! Seed 003 fixes the camera to the body and projects with the vehicle's roll and pitch
-//! ([`CameraPose::downward`](crate::vision::camera::CameraPose::downward)). In strong wind a
+//! ([`CameraPose::downward`](crate::camera::CameraPose::downward)). In strong wind a
 //! quadrotor leans further than such a camera's half field of view, so the ground straight
 //! below, and everything on the upwind side, leaves the image. A stabilising gimbal holds the
 //! camera looking down whatever the lean (within its joints' range) and reports its own
 //! attitude (MAVLink GIMBAL_DEVICE_ATTITUDE_STATUS); the frame is then projected with that.
 //!
 //! Both mounts are described by one [`Attitude`]: the attitude of a body to which the camera
-//! would be fixed as [`CameraPose::downward`](crate::vision::camera::CameraPose::downward)
+//! would be fixed as [`CameraPose::downward`](crate::camera::CameraPose::downward)
 //! fixes it. On the body that is the vehicle's attitude; on a gimbal looking straight down it
 //! is (0, 0, heading). MAVLink's gimbal frame differs: its null rotation looks forward, so a
 //! camera looking down is pitched −90° ([`gimbal_quaternion`], [`camera_attitude_of_gimbal`]).
@@ -74,7 +74,7 @@ pub fn camera_attitude_of_gimbal(q_wxyz: [f64; 4]) -> Option<Attitude> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vision::camera::CameraPose;
+    use crate::camera::CameraPose;
 
     /// A camera held level looking down is, in MAVLink's gimbal frame, pitched down by 90°
     /// and turned to the heading: its optical axis (the gimbal's x) points down, and the image

@@ -81,9 +81,9 @@ impl Default for TrackerConfig {
 /// The inputs of one prediction, NED, held over the interval up to the prediction's time.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct MotionInput {
-    pub uav_velocity_ned_mps: Vector3<f64>,
-    pub uav_acceleration_ned_mps2: Vector3<f64>,
-    pub platform_velocity_ned_mps: Vector3<f64>,
+    pub uav_velocity_ned_m_s: Vector3<f64>,
+    pub uav_acceleration_ned_m_s2: Vector3<f64>,
+    pub platform_velocity_ned_m_s: Vector3<f64>,
 }
 
 /// A vision fix: the UAV's position relative to the platform, taken at `capture_time_s`.
@@ -183,13 +183,13 @@ impl Tracker {
     /// first fix there is nothing to predict and it returns `NotInitialized`.
     pub fn predict(&mut self, time_s: f64, input: &MotionInput) -> Result<(), TrackerError> {
         let finite = time_s.is_finite()
-            && input.uav_velocity_ned_mps.iter().all(|c| c.is_finite())
+            && input.uav_velocity_ned_m_s.iter().all(|c| c.is_finite())
             && input
-                .uav_acceleration_ned_mps2
+                .uav_acceleration_ned_m_s2
                 .iter()
                 .all(|c| c.is_finite())
             && input
-                .platform_velocity_ned_mps
+                .platform_velocity_ned_m_s
                 .iter()
                 .all(|c| c.is_finite());
         if !finite {
@@ -206,12 +206,12 @@ impl Tracker {
         if dt_s == 0.0 {
             return Ok(());
         }
-        let relative_velocity = input.uav_velocity_ned_mps - input.platform_velocity_ned_mps;
+        let relative_velocity = input.uav_velocity_ned_m_s - input.platform_velocity_ned_m_s;
         let next = RelativeEstimate {
             time_s,
             uav_relative_ned_m: now.uav_relative_ned_m
                 + relative_velocity * dt_s
-                + input.uav_acceleration_ned_mps2 * (0.5 * dt_s * dt_s),
+                + input.uav_acceleration_ned_m_s2 * (0.5 * dt_s * dt_s),
             covariance_m2: now.covariance_m2
                 + Matrix3::identity() * (dt_s * self.config.process_noise_m2_per_s),
         };
@@ -417,11 +417,11 @@ mod tests {
             let t = k as f64 * dt_s;
             let uav_velocity = Vector3::new((0.5 * t).sin() * 2.0, 1.0, 0.2);
             let input = MotionInput {
-                uav_velocity_ned_mps: uav_velocity,
-                uav_acceleration_ned_mps2: Vector3::zeros(),
-                platform_velocity_ned_mps: (scenario.platform_velocity)(t),
+                uav_velocity_ned_m_s: uav_velocity,
+                uav_acceleration_ned_m_s2: Vector3::zeros(),
+                platform_velocity_ned_m_s: (scenario.platform_velocity)(t),
             };
-            truth += (uav_velocity - input.platform_velocity_ned_mps) * dt_s
+            truth += (uav_velocity - input.platform_velocity_ned_m_s) * dt_s
                 + gaussian3(&mut rng, (config.process_noise_m2_per_s * dt_s).sqrt());
             truth_log.push((t, truth));
             tracker.predict(t, &input).unwrap();
@@ -568,9 +568,9 @@ mod tests {
     fn a_late_fix_equals_an_on_time_fix_replayed() {
         let config = TrackerConfig::default();
         let input_at = |k: usize| MotionInput {
-            uav_velocity_ned_mps: Vector3::new(k as f64 * 0.1, -1.0, 0.3),
-            uav_acceleration_ned_mps2: Vector3::new(0.5, 0.0, -0.2),
-            platform_velocity_ned_mps: Vector3::new(2.0, 0.5, 0.0),
+            uav_velocity_ned_m_s: Vector3::new(k as f64 * 0.1, -1.0, 0.3),
+            uav_acceleration_ned_m_s2: Vector3::new(0.5, 0.0, -0.2),
+            platform_velocity_ned_m_s: Vector3::new(2.0, 0.5, 0.0),
         };
         let first = VisionFix {
             capture_time_s: 0.0,
@@ -594,7 +594,7 @@ mod tests {
             let input = |k| {
                 let mut i = input_at(k);
                 if zero_acceleration {
-                    i.uav_acceleration_ned_mps2 = Vector3::zeros();
+                    i.uav_acceleration_ned_m_s2 = Vector3::zeros();
                 }
                 i
             };
@@ -793,9 +793,9 @@ mod tests {
             })
             .unwrap();
         let input = MotionInput {
-            uav_velocity_ned_mps: Vector3::new(2.0, 1.0, 0.0),
-            uav_acceleration_ned_mps2: Vector3::new(0.0, 2.0, 0.0),
-            platform_velocity_ned_mps: Vector3::new(3.0, 0.0, 0.0),
+            uav_velocity_ned_m_s: Vector3::new(2.0, 1.0, 0.0),
+            uav_acceleration_ned_m_s2: Vector3::new(0.0, 2.0, 0.0),
+            platform_velocity_ned_m_s: Vector3::new(3.0, 0.0, 0.0),
         };
         // Frames missed for 2 s: it keeps predicting.
         for k in 1..=100 {

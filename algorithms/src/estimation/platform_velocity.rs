@@ -37,7 +37,7 @@ pub struct PlatformVelocityConfig {
     /// Standard deviation of the platform's speed before any fix, along each axis, m/s.
     pub initial_velocity_std_m_s: f64,
     /// Below this speed the direction of motion is noise and the heading is held.
-    pub min_speed_for_heading_mps: f64,
+    pub min_speed_for_heading_m_s: f64,
     /// After a gap longer than this (target lost) the filter restarts.
     pub max_gap_s: f64,
 }
@@ -47,7 +47,7 @@ impl Default for PlatformVelocityConfig {
         Self {
             acceleration_noise_m2_per_s3: 0.5,
             initial_velocity_std_m_s: 3.0,
-            min_speed_for_heading_mps: 0.5,
+            min_speed_for_heading_m_s: 0.5,
             max_gap_s: 1.0,
         }
     }
@@ -61,7 +61,7 @@ pub struct PlatformFix {
     pub uav_relative_ned_m: Vector3<f64>,
     /// Variance of the fix along each horizontal axis, m².
     pub horizontal_variance_m2: f64,
-    pub uav_velocity_ned_mps: Vector3<f64>,
+    pub uav_velocity_ned_m_s: Vector3<f64>,
     /// The platform's yaw from the marker's orientation, when the detector gives it.
     pub platform_yaw_rad: Option<f64>,
 }
@@ -69,8 +69,8 @@ pub struct PlatformFix {
 /// The estimate: horizontal velocity in NED (down component 0), signed speed along the heading.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PlatformVelocity {
-    pub velocity_ned_mps: Vector3<f64>,
-    pub speed_mps: f64,
+    pub velocity_ned_m_s: Vector3<f64>,
+    pub speed_m_s: f64,
     pub heading_rad: f64,
 }
 
@@ -106,8 +106,8 @@ impl PlatformVelocityEstimator {
             ),
             ("initial_velocity_std_m_s", config.initial_velocity_std_m_s),
             (
-                "min_speed_for_heading_mps",
-                config.min_speed_for_heading_mps,
+                "min_speed_for_heading_m_s",
+                config.min_speed_for_heading_m_s,
             ),
             ("max_gap_s", config.max_gap_s),
         ] {
@@ -137,8 +137,8 @@ impl PlatformVelocityEstimator {
             ),
         };
         Some(PlatformVelocity {
-            velocity_ned_mps: Vector3::new(velocity.x, velocity.y, 0.0),
-            speed_mps: velocity.dot(&heading),
+            velocity_ned_m_s: Vector3::new(velocity.x, velocity.y, 0.0),
+            speed_m_s: velocity.dot(&heading),
             heading_rad: heading.y.atan2(heading.x),
         })
     }
@@ -150,7 +150,7 @@ impl PlatformVelocityEstimator {
     ) -> Result<Option<PlatformVelocity>, PlatformVelocityError> {
         let finite = fix.time_s.is_finite()
             && fix.uav_relative_ned_m.iter().all(|c| c.is_finite())
-            && fix.uav_velocity_ned_mps.iter().all(|c| c.is_finite())
+            && fix.uav_velocity_ned_m_s.iter().all(|c| c.is_finite())
             && fix.horizontal_variance_m2.is_finite()
             && fix.horizontal_variance_m2 > 0.0
             && fix.platform_yaw_rad.is_none_or(|y| y.is_finite());
@@ -171,7 +171,7 @@ impl PlatformVelocityEstimator {
             self.heading = Some(Vector2::new(yaw.cos(), yaw.sin()));
         }
         let relative_ne_m = fix.uav_relative_ned_m.xy();
-        let uav_velocity_ne_m_s = fix.uav_velocity_ned_mps.xy();
+        let uav_velocity_ne_m_s = fix.uav_velocity_ned_m_s.xy();
         let variance_m2 = fix.horizontal_variance_m2;
         let mut filter = match self.filter {
             Some(f) if fix.time_s - f.time_s <= self.config.max_gap_s => f,
@@ -217,7 +217,7 @@ impl PlatformVelocityEstimator {
         filter.fixes += 1;
         let velocity = Vector2::new(filter.state[(1, 0)], filter.state[(1, 1)]);
         if fix.platform_yaw_rad.is_none()
-            && velocity.norm() >= self.config.min_speed_for_heading_mps
+            && velocity.norm() >= self.config.min_speed_for_heading_m_s
         {
             self.heading = Some(velocity.normalize());
         }
@@ -234,20 +234,20 @@ mod tests {
     use nalgebra::Matrix3;
     use std::f64::consts::PI;
 
-    const SPEED_MPS: f64 = 3.0;
+    const SPEED_M_S: f64 = 3.0;
     const YAW_RATE_RAD_PER_S: f64 = 0.5; // radius 6 m
     const TURN_START_S: f64 = 5.0;
     const TURN_END_S: f64 = TURN_START_S + PI / YAW_RATE_RAD_PER_S;
 
     /// A tractor heading north at 3 m/s, U-turning through 180° at 0.5 rad/s, then heading south.
     fn tractor(t: f64) -> (Vector3<f64>, Vector3<f64>, f64) {
-        let r = SPEED_MPS / YAW_RATE_RAD_PER_S;
+        let r = SPEED_M_S / YAW_RATE_RAD_PER_S;
         let yaw = (t.clamp(TURN_START_S, TURN_END_S) - TURN_START_S) * YAW_RATE_RAD_PER_S;
-        let velocity = Vector3::new(yaw.cos(), yaw.sin(), 0.0) * SPEED_MPS;
+        let velocity = Vector3::new(yaw.cos(), yaw.sin(), 0.0) * SPEED_M_S;
         // Position in closed form: straight, arc (centre 6 m east of the turn's start), straight.
-        let start = Vector3::new(SPEED_MPS * TURN_START_S, 0.0, 0.0);
+        let start = Vector3::new(SPEED_M_S * TURN_START_S, 0.0, 0.0);
         let position = if t <= TURN_START_S {
-            Vector3::new(SPEED_MPS * t, 0.0, 0.0)
+            Vector3::new(SPEED_M_S * t, 0.0, 0.0)
         } else {
             let arc = start + Vector3::new(r * yaw.sin(), r * (1.0 - yaw.cos()), 0.0);
             arc + velocity * (t - t.min(TURN_END_S))
@@ -264,8 +264,8 @@ mod tests {
     }
 
     struct Errors {
-        max_in_turn_mps: f64,
-        max_after_turn_mps: f64,
+        max_in_turn_m_s: f64,
+        max_after_turn_m_s: f64,
         final_heading_rad: f64,
     }
 
@@ -273,10 +273,10 @@ mod tests {
         let config = PlatformVelocityConfig::default();
         let mut estimator = PlatformVelocityEstimator::new(config).unwrap();
         let mut rng = SplitMix64::new(seed);
-        let (fix_std_m, velocity_std_mps) = (0.05, 0.05);
+        let (fix_std_m, velocity_std_m_s) = (0.05, 0.05);
         let mut errors = Errors {
-            max_in_turn_mps: 0.0,
-            max_after_turn_mps: 0.0,
+            max_in_turn_m_s: 0.0,
+            max_after_turn_m_s: 0.0,
             final_heading_rad: f64::NAN,
         };
         for k in 0..=(20.0 * 15.0) as usize {
@@ -294,17 +294,17 @@ mod tests {
                 time_s: t,
                 uav_relative_ned_m: uav_position - platform + noise(&mut rng, fix_std_m),
                 horizontal_variance_m2: fix_std_m.powi(2),
-                uav_velocity_ned_mps: uav_velocity + noise(&mut rng, velocity_std_mps),
+                uav_velocity_ned_m_s: uav_velocity + noise(&mut rng, velocity_std_m_s),
                 platform_yaw_rad: use_yaw.then(|| yaw + 0.02 * rng.next_gaussian()),
             };
             let Some(est) = estimator.update(&fix).unwrap() else {
                 continue;
             };
-            let error = (est.velocity_ned_mps - platform_velocity).norm();
+            let error = (est.velocity_ned_m_s - platform_velocity).norm();
             if (TURN_START_S..=TURN_END_S).contains(&t) {
-                errors.max_in_turn_mps = errors.max_in_turn_mps.max(error);
+                errors.max_in_turn_m_s = errors.max_in_turn_m_s.max(error);
             } else if t > TURN_END_S + 3.0 {
-                errors.max_after_turn_mps = errors.max_after_turn_mps.max(error);
+                errors.max_after_turn_m_s = errors.max_after_turn_m_s.max(error);
             }
             errors.final_heading_rad = est.heading_rad;
         }
@@ -316,13 +316,13 @@ mod tests {
         let e = run(true, 11);
         eprintln!(
             "with yaw: max error {:.3} m/s in the turn, {:.3} m/s after",
-            e.max_in_turn_mps, e.max_after_turn_mps
+            e.max_in_turn_m_s, e.max_after_turn_m_s
         );
         // Speed is constant and the yaw measured, so the turn costs nothing beyond noise: the
         // filter's steady-state velocity std with 5 cm fixes at 15 fps is 0.28 m/s per axis
         // (its Riccati equation iterated), 0.40 m/s in 2-D; twice that bounds the error.
-        assert!(e.max_in_turn_mps < 0.8, "{}", e.max_in_turn_mps);
-        assert!(e.max_after_turn_mps < 0.8, "{}", e.max_after_turn_mps);
+        assert!(e.max_in_turn_m_s < 0.8, "{}", e.max_in_turn_m_s);
+        assert!(e.max_after_turn_m_s < 0.8, "{}", e.max_after_turn_m_s);
         assert!((e.final_heading_rad.abs() - PI).abs() < 0.1);
     }
 
@@ -331,21 +331,21 @@ mod tests {
         let e = run(false, 12);
         eprintln!(
             "without yaw: max error {:.3} m/s in the turn, {:.3} m/s after",
-            e.max_in_turn_mps, e.max_after_turn_mps
+            e.max_in_turn_m_s, e.max_after_turn_m_s
         );
         // The velocity turns at ω·v = 1.5 m/s²; the filter follows with a lag of about
         // √2·(R/q)^¼ = 0.38 s (a second-order filter's), 0.56 m/s, plus the noise bound above.
         let fix_variance_m2: f64 = 0.05 * 0.05;
         let q = PlatformVelocityConfig::default().acceleration_noise_m2_per_s3;
         let lag_s = 2f64.sqrt() * (fix_variance_m2 / q).powf(0.25);
-        let bound = YAW_RATE_RAD_PER_S * SPEED_MPS * lag_s + 0.8;
+        let bound = YAW_RATE_RAD_PER_S * SPEED_M_S * lag_s + 0.8;
         assert!(
-            e.max_in_turn_mps < bound,
+            e.max_in_turn_m_s < bound,
             "{} vs {bound}",
-            e.max_in_turn_mps
+            e.max_in_turn_m_s
         );
         // It never collapses through zero and ends heading south.
-        assert!(e.max_after_turn_mps < 0.8, "{}", e.max_after_turn_mps);
+        assert!(e.max_after_turn_m_s < 0.8, "{}", e.max_after_turn_m_s);
         assert!((e.final_heading_rad.abs() - PI).abs() < 0.15);
     }
 
@@ -373,9 +373,9 @@ mod tests {
             let truth = uav_position - platform;
             if k > 0 {
                 let input = MotionInput {
-                    uav_velocity_ned_mps: uav_velocity,
-                    uav_acceleration_ned_mps2: Vector3::zeros(),
-                    platform_velocity_ned_mps: platform_velocity,
+                    uav_velocity_ned_m_s: uav_velocity,
+                    uav_acceleration_ned_m_s2: Vector3::zeros(),
+                    platform_velocity_ned_m_s: platform_velocity,
                 };
                 tracker.predict(t, &input).unwrap();
             }
@@ -399,11 +399,11 @@ mod tests {
                     time_s: t,
                     uav_relative_ned_m: measured,
                     horizontal_variance_m2: 0.05f64.powi(2),
-                    uav_velocity_ned_mps: uav_velocity,
+                    uav_velocity_ned_m_s: uav_velocity,
                     platform_yaw_rad: Some(yaw),
                 };
                 if let Some(v) = estimator.update(&fix).unwrap() {
-                    platform_velocity = v.velocity_ned_mps;
+                    platform_velocity = v.velocity_ned_m_s;
                 }
             }
             if t > 2.0 {
@@ -443,7 +443,7 @@ mod tests {
                     time_s: t,
                     uav_relative_ned_m: uav - platform,
                     horizontal_variance_m2: 0.01,
-                    uav_velocity_ned_mps: uav_velocity,
+                    uav_velocity_ned_m_s: uav_velocity,
                     platform_yaw_rad: None,
                 })
                 .unwrap();
@@ -460,7 +460,7 @@ mod tests {
             let variance: f64 = times.iter().map(|t| (t - mean_t).powi(2)).sum();
             covariance / variance
         };
-        let estimate = last.unwrap().velocity_ned_mps;
+        let estimate = last.unwrap().velocity_ned_m_s;
         assert!(
             (estimate.x - slope(&norths)).abs() < 1e-6,
             "{} vs {}",
@@ -492,7 +492,7 @@ mod tests {
             time_s: 1.0,
             uav_relative_ned_m: Vector3::zeros(),
             horizontal_variance_m2: 0.01,
-            uav_velocity_ned_mps: Vector3::zeros(),
+            uav_velocity_ned_m_s: Vector3::zeros(),
             platform_yaw_rad: None,
         };
         assert_eq!(e.update(&fix).unwrap(), None);

@@ -4,7 +4,7 @@
 //! average over recent frames steadies them; the result is decomposed on the body axes and
 //! rotated into NED.
 //!
-//! Axes: the camera is mounted as [`crate::vision::camera::CameraPose::downward`], so image right
+//! Axes: the camera is mounted as [`crate::camera::CameraPose::downward`], so image right
 //! is body right (FRD y) and image up is body forward (FRD x). Headings are angles from body
 //! forward towards body right, so `course_ned = heading_body + yaw`.
 //!
@@ -295,7 +295,7 @@ fn wrap(a: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vision::camera::{CameraPose, PinholeCamera};
+    use crate::camera::{CameraPose, PinholeCamera};
     use crate::vision::render::SplitMix64;
     use nalgebra::{Matrix3, Point3, Rotation3};
     use std::f64::consts::PI;

@@ -544,7 +544,7 @@ impl FeatureMatcher {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vision::camera::{CameraPose, PinholeCamera};
+    use crate::camera::{CameraPose, PinholeCamera};
     use crate::vision::image::GrayImage;
     use crate::vision::render::{render, RenderOptions, Scene, Texture};
     use nalgebra::Vector3;

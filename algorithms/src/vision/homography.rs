@@ -424,7 +424,7 @@ pub fn fit_correspondences(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vision::camera::{CameraPose, PinholeCamera};
+    use crate::camera::{CameraPose, PinholeCamera};
     use crate::vision::features::{FeatureConfig, FeatureMatcher};
     use crate::vision::render::{render, RenderOptions, Scene, Texture};
     use nalgebra::{Point3, Vector3};

@@ -483,7 +483,7 @@ pub fn apply(h: &Matrix3<f64>, point: [f64; 2]) -> [f64; 2] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vision::camera::{CameraPose, PinholeCamera};
+    use crate::camera::{CameraPose, PinholeCamera};
     use crate::vision::image::GrayImage;
     use crate::vision::render::{render, true_pixel, ImageEffects, RenderOptions, Scene};
     use nalgebra::Vector3;

@@ -1,7 +1,7 @@
-//! Vision: images, camera models, the marker renderer and the landing-marker detectors.
+//! Vision: images, the marker renderer and the landing-marker detectors (the camera models are
+//! [`crate::camera`]).
 
 pub mod aruco;
-pub mod camera;
 pub mod features;
 pub mod homography;
 pub mod image;

@@ -19,9 +19,9 @@ use crate::topics::{
     CameraFrame, HazardDetection, HazardReport, RelativeState, VehicleState, CAMERA_FRAME, HAZARDS,
     RELATIVE_STATE, VEHICLE_STATE,
 };
+use algorithms::camera::PinholeCamera;
 use algorithms::estimation::camera_mount::CameraMount;
 use algorithms::estimation::projection::{pad_relative_to_uav_ned_m, Attitude};
-use algorithms::vision::camera::PinholeCamera;
 use algorithms::vision::yolo::{
     decode, letterbox_gray, non_maximum_suppression, Detection, YoloFormat,
 };

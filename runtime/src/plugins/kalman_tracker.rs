@@ -8,6 +8,7 @@ use crate::task::{Task, TaskBuild, TaskContext, TaskError};
 use crate::topics::{
     MarkerObservation, RelativeState, VehicleState, LANDING_MARKER, RELATIVE_STATE, VEHICLE_STATE,
 };
+use algorithms::camera::PinholeCamera;
 use algorithms::estimation::attitude_history::{AttitudeHistory, AttitudeSample};
 use algorithms::estimation::camera_mount::CameraMount;
 use algorithms::estimation::kalman::{FixOutcome, MotionInput, Tracker, TrackerConfig, VisionFix};
@@ -15,7 +16,6 @@ use algorithms::estimation::platform_velocity::{
     PlatformFix, PlatformVelocityConfig, PlatformVelocityEstimator,
 };
 use algorithms::estimation::projection::{pad_relative_to_uav_ned_m, FixNoise};
-use algorithms::vision::camera::PinholeCamera;
 
 /// How far back a frame's capture can be looked up (a frame older than this is projected
 /// with the oldest attitude kept).
@@ -154,12 +154,12 @@ impl Task for TrackerTask {
         });
         let now_s = ctx.now().as_secs_f64();
         let state_fresh = now_s - latest.stamp.as_secs_f64() <= MAX_STATE_AGE_S;
-        let platform_velocity = self.platform.velocity().map(|p| p.velocity_ned_mps);
+        let platform_velocity = self.platform.velocity().map(|p| p.velocity_ned_m_s);
         if self.tracker.estimate().is_some() {
             let input = MotionInput {
-                uav_velocity_ned_mps: state.velocity_ned_m_s,
-                uav_acceleration_ned_mps2: state.acceleration_ned_m_s2,
-                platform_velocity_ned_mps: platform_velocity.unwrap_or_else(Vector3::zeros),
+                uav_velocity_ned_m_s: state.velocity_ned_m_s,
+                uav_acceleration_ned_m_s2: state.acceleration_ned_m_s2,
+                platform_velocity_ned_m_s: platform_velocity.unwrap_or_else(Vector3::zeros),
             };
             self.tracker
                 .predict(now_s, &input)
@@ -235,7 +235,7 @@ impl Task for TrackerTask {
                                     uav_relative_ned_m: uav_relative,
                                     horizontal_variance_m2: fix_variance_m2,
                                     // As the fix: at the frame's capture.
-                                    uav_velocity_ned_mps: at_capture.velocity_ned_m_s,
+                                    uav_velocity_ned_m_s: at_capture.velocity_ned_m_s,
                                     platform_yaw_rad: None,
                                 });
                             }
@@ -257,7 +257,7 @@ impl Task for TrackerTask {
                 ctx.now(),
                 RelativeState {
                     estimate,
-                    platform_velocity_ned_m_s: self.platform.velocity().map(|p| p.velocity_ned_mps),
+                    platform_velocity_ned_m_s: self.platform.velocity().map(|p| p.velocity_ned_m_s),
                     last_fix_time_s: self.last_fix_time_s,
                 },
             );

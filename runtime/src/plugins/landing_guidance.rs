@@ -15,6 +15,7 @@ use crate::topics::{
     LandingSetpoint, MissionPhase, RelativeState, VehicleState, LANDING_SETPOINT, MISSION_PHASE,
     RELATIVE_STATE, VEHICLE_STATE,
 };
+use algorithms::camera::PinholeCamera;
 use algorithms::control::landing::{
     HorizontalController, LandingConfig, LandingController, LandingInput, NearGroundWind,
     RelativeFix,
@@ -24,7 +25,6 @@ use algorithms::control::pid::TwoStageGains;
 use algorithms::control::wind_shear::aerodynamic_accel_ne_m_s2;
 use algorithms::estimation::camera_mount::CameraMount;
 use algorithms::estimation::projection::pad_in_view_offset_ne_m;
-use algorithms::vision::camera::PinholeCamera;
 use nalgebra::Vector2;
 use serde::Deserialize;
 

@@ -177,7 +177,7 @@ mod tests {
     use crate::config::{Knob, Resource, TaskConfig};
     use crate::scheduler::SchedulerBuilder;
     use crate::topics::CameraFrame;
-    use algorithms::vision::camera::{CameraPose, PinholeCamera};
+    use algorithms::camera::{CameraPose, PinholeCamera};
     use algorithms::vision::image::GrayImage;
     use algorithms::vision::render::{render, true_pixel, RenderOptions, Scene, Texture};
     use nalgebra::Vector3;

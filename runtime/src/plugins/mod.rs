@@ -104,9 +104,9 @@ mod tests {
         CameraFrame, LandingSetpoint, MissionPhase, RelativeState, VehicleState, CAMERA_FRAME,
         LANDING_SETPOINT, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
     };
+    use algorithms::camera::{CameraPose, PinholeCamera};
     use algorithms::control::landing::LandingMode;
     use algorithms::estimation::projection::Attitude;
-    use algorithms::vision::camera::{CameraPose, PinholeCamera};
     use algorithms::vision::landing_marker::LandingMarkerLayout;
     use algorithms::vision::render::{
         apply_effects, render, ImageEffects, RenderOptions, Scene, Texture,

@@ -11,7 +11,7 @@
 //!
 //! Corners follow OpenCV: corner 0 is the marker's top-left (as its image is drawn upright),
 //! then top-right, bottom-right, bottom-left, which is clockwise on screen. Pixel coordinates
-//! have integer values at pixel centres, as in [`crate::vision::camera`].
+//! have integer values at pixel centres, as in [`crate::camera`].
 
 mod contour;
 mod decode;

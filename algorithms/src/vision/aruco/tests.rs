@@ -2,7 +2,7 @@
 //! random camera poses by [`crate::vision::render`].
 
 use super::*;
-use crate::vision::camera::{CameraPose, PinholeCamera};
+use crate::camera::{CameraPose, PinholeCamera};
 use crate::vision::image::GrayImage;
 use crate::vision::render::{
     render, ImageEffects, MotionBlur, Patch, RenderOptions, Scene, SplitMix64, Texture,

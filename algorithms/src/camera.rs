@@ -1,4 +1,5 @@
-//! The pinhole camera with radial-tangential (Brown–Conrady, OpenCV) distortion, and the camera's pose.
+//! The camera models, the pinhole camera with radial-tangential (Brown–Conrady, OpenCV)
+//! distortion and the Kannala–Brandt fisheye (both a [`CameraModel`]), and the camera's pose.
 //!
 //! Conventions, used by the renderer and every detector:
 //! - Pixel coordinates (u, v): u to the right, v down, **integer values at pixel centres** (the OpenCV
@@ -114,7 +115,7 @@ pub struct PinholeCamera {
 
 /// Checks the intrinsics every camera model shares: a non-empty image, positive finite focal
 /// lengths and a finite principal point.
-pub(crate) fn check_intrinsics(
+fn check_intrinsics(
     width_px: usize,
     height_px: usize,
     fx_px: f64,
@@ -255,6 +256,148 @@ impl PinholeCamera {
             && v_px >= -0.5
             && u_px < self.width_px as f64 - 0.5
             && v_px < self.height_px as f64 - 0.5
+    }
+}
+
+/// A camera model as the projection needs it: pixels ↔ rays in the camera frame (x right, y down,
+/// z forward; pixel centres at integer coordinates, as in the module docs).
+pub trait CameraModel {
+    fn width_px(&self) -> usize;
+    fn height_px(&self) -> usize;
+    /// Pixel (u, v) of a camera-frame point; `None` where the model cannot see it.
+    fn project_point(&self, point_camera: &Point3<f64>) -> Option<(f64, f64)>;
+    /// Unit ray through pixel (u, v); `None` where the model has no inverse there.
+    fn unproject_pixel(&self, u_px: f64, v_px: f64) -> Option<Unit<Vector3<f64>>>;
+}
+
+impl CameraModel for PinholeCamera {
+    fn width_px(&self) -> usize {
+        self.width_px
+    }
+    fn height_px(&self) -> usize {
+        self.height_px
+    }
+    fn project_point(&self, point_camera: &Point3<f64>) -> Option<(f64, f64)> {
+        self.project(point_camera)
+    }
+    fn unproject_pixel(&self, u_px: f64, v_px: f64) -> Option<Unit<Vector3<f64>>> {
+        Some(self.unproject(u_px, v_px))
+    }
+}
+
+/// A fisheye camera, Kannala–Brandt / OpenCV `fisheye` model: the image radius grows with the
+/// angle θ off the axis, θ_d = θ(1 + k1θ² + k2θ⁴ + k3θ⁶ + k4θ⁸); all k = 0 is equidistant.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FisheyeCamera {
+    pub width_px: usize,
+    pub height_px: usize,
+    pub fx_px: f64,
+    pub fy_px: f64,
+    pub cx_px: f64,
+    pub cy_px: f64,
+    pub k: [f64; 4],
+}
+
+impl FisheyeCamera {
+    pub fn new(
+        width_px: usize,
+        height_px: usize,
+        fx_px: f64,
+        fy_px: f64,
+        cx_px: f64,
+        cy_px: f64,
+        k: [f64; 4],
+    ) -> Result<Self, CameraError> {
+        check_intrinsics(width_px, height_px, fx_px, fy_px, cx_px, cy_px)?;
+        if !k.iter().all(|c| c.is_finite()) {
+            return Err(CameraError::Distortion);
+        }
+        Ok(Self {
+            width_px,
+            height_px,
+            fx_px,
+            fy_px,
+            cx_px,
+            cy_px,
+            k,
+        })
+    }
+
+    fn distorted_angle(&self, theta_rad: f64) -> f64 {
+        let t2 = theta_rad * theta_rad;
+        let [k1, k2, k3, k4] = self.k;
+        theta_rad * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+    }
+
+    fn distorted_angle_slope(&self, theta_rad: f64) -> f64 {
+        let t2 = theta_rad * theta_rad;
+        let [k1, k2, k3, k4] = self.k;
+        1.0 + t2 * (3.0 * k1 + t2 * (5.0 * k2 + t2 * (7.0 * k3 + t2 * 9.0 * k4)))
+    }
+}
+
+impl CameraModel for FisheyeCamera {
+    fn width_px(&self) -> usize {
+        self.width_px
+    }
+    fn height_px(&self) -> usize {
+        self.height_px
+    }
+    fn project_point(&self, point_camera: &Point3<f64>) -> Option<(f64, f64)> {
+        let radial = point_camera.x.hypot(point_camera.y);
+        // θ from atan2 so rays beyond 90° (a >180° lens) still project.
+        let theta_rad = radial.atan2(point_camera.z);
+        if !theta_rad.is_finite() || point_camera.coords.norm() < 1e-12 {
+            return None;
+        }
+        let theta_d = self.distorted_angle(theta_rad);
+        let (cos_phi, sin_phi) = if radial > 0.0 {
+            (point_camera.x / radial, point_camera.y / radial)
+        } else {
+            (1.0, 0.0)
+        };
+        Some((
+            self.cx_px + self.fx_px * theta_d * cos_phi,
+            self.cy_px + self.fy_px * theta_d * sin_phi,
+        ))
+    }
+    fn unproject_pixel(&self, u_px: f64, v_px: f64) -> Option<Unit<Vector3<f64>>> {
+        let (xd, yd) = (
+            (u_px - self.cx_px) / self.fx_px,
+            (v_px - self.cy_px) / self.fy_px,
+        );
+        let theta_d = xd.hypot(yd);
+        if !theta_d.is_finite() {
+            return None;
+        }
+        // Newton on θ_d(θ) = target from θ = θ_d; the lens polynomial is monotonic over a
+        // calibrated image, so a non-positive slope means the pixel is outside the valid region.
+        let mut theta_rad = theta_d;
+        for _ in 0..30 {
+            let slope = self.distorted_angle_slope(theta_rad);
+            if slope <= 1e-9 {
+                return None;
+            }
+            let step = (self.distorted_angle(theta_rad) - theta_d) / slope;
+            theta_rad -= step;
+            if step.abs() < 1e-15 {
+                break;
+            }
+        }
+        if !(0.0..std::f64::consts::PI).contains(&theta_rad) {
+            return None;
+        }
+        let (cos_phi, sin_phi) = if theta_d > 0.0 {
+            (xd / theta_d, yd / theta_d)
+        } else {
+            (1.0, 0.0)
+        };
+        let (s, c) = theta_rad.sin_cos();
+        Some(Unit::new_normalize(Vector3::new(
+            s * cos_phi,
+            s * sin_phi,
+            c,
+        )))
     }
 }
 
@@ -437,5 +580,88 @@ mod tests {
         assert!(ground.z.abs() < 1e-9);
         let (u, v) = cam.project_world(&pose, &ground).unwrap();
         assert!((u - 100.0).abs() < 1e-7 && (v - 400.0).abs() < 1e-7);
+    }
+
+    // The fisheye, checked through the projection it serves.
+    use crate::estimation::projection::{pad_relative_to_uav_ned_m, Attitude, ProjectionError};
+
+    const MM: f64 = 1e-3;
+
+    fn close(a: &Vector3<f64>, b: &Vector3<f64>, tol_m: f64) -> bool {
+        (a - b).norm() < tol_m
+    }
+
+    fn fisheye() -> FisheyeCamera {
+        FisheyeCamera::new(
+            1280,
+            960,
+            330.0,
+            332.0,
+            641.2,
+            478.5,
+            [0.02, -0.004, 0.001, -0.0002],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn equidistant_fisheye_puts_angle_times_focal_length_on_the_image() {
+        let cam = FisheyeCamera::new(1280, 960, 330.0, 330.0, 640.0, 480.0, [0.0; 4]).unwrap();
+        let h = 10.0;
+        // Nadir, a pixel θ·f to the right of centre looks θ off the axis: east = h·tan θ.
+        for theta in [0.0f64, 0.3, 0.9, 1.3] {
+            let got = pad_relative_to_uav_ned_m(
+                &cam,
+                &Attitude::default(),
+                h,
+                640.0 + 330.0 * theta,
+                480.0,
+            )
+            .unwrap();
+            let want = Vector3::new(0.0, h * theta.tan(), h);
+            assert!(close(&got, &want, MM), "{got} vs {want}");
+        }
+        // Beyond 90° off a nadir axis the ray looks up: no ground.
+        assert!(matches!(
+            pad_relative_to_uav_ned_m(&cam, &Attitude::default(), h, 640.0 + 330.0 * 1.7, 480.0),
+            Err(ProjectionError::AboveHorizon { .. })
+        ));
+    }
+
+    #[test]
+    fn fisheye_recovers_known_ground_points() {
+        let cam = fisheye();
+        for attitude in [
+            Attitude::new(0.0, 0.0, 0.4),
+            Attitude::new(0.15, -0.1, -1.9),
+            Attitude::new(-0.05, 0.25, 3.0),
+        ] {
+            let uav_ned_m = Vector3::new(2.0, 1.0, -10.0);
+            let pose = CameraPose::downward(
+                uav_ned_m,
+                attitude.roll_rad,
+                attitude.pitch_rad,
+                attitude.yaw_rad,
+            );
+            for (dn, de) in [(0.0, 0.0), (4.0, -6.0), (-9.0, 3.0), (12.0, 12.0)] {
+                let pad = Point3::new(uav_ned_m.x + dn, uav_ned_m.y + de, 0.0);
+                let (u, v) = cam.project_point(&pose.world_to_camera(&pad)).unwrap();
+                assert!(
+                    (-0.5..1279.5).contains(&u) && (-0.5..959.5).contains(&v),
+                    "{u}, {v}"
+                );
+                let got = pad_relative_to_uav_ned_m(&cam, &attitude, 10.0, u, v).unwrap();
+                let want = pad.coords - uav_ned_m;
+                assert!(close(&got, &want, MM), "{attitude:?}: {got} vs {want}");
+            }
+        }
+        assert!(matches!(
+            FisheyeCamera::new(640, 480, 0.0, 1.0, 0.0, 0.0, [0.0; 4]),
+            Err(CameraError::FocalLength { .. })
+        ));
+        assert!(matches!(
+            FisheyeCamera::new(640, 480, 1.0, 1.0, 0.0, 0.0, [f64::NAN, 0.0, 0.0, 0.0]),
+            Err(CameraError::Distortion)
+        ));
     }
 }
