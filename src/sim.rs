@@ -11,7 +11,7 @@ use runtime::registry::PluginRegistry;
 use sim::outcome::{SimOutcome, SimSummary};
 use sim::realism::Realism;
 use sim::tractor::PathKind;
-use sitl::mission::{simulate, Faults, SimOptions, SimRecording, WindKind};
+use sitl::mission::{simulate, Faults, SimOptions, SimProgress, SimRecording, WindKind};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -244,7 +244,11 @@ pub fn run(args: &SimArgs) -> ExitCode {
                 }
             }
         }
-        let outcome = match simulate(&model, &registry, &options) {
+        let bar = mission_progress_bar();
+        options.progress = Some(progress_sink(&bar));
+        let outcome = simulate(&model, &registry, &options);
+        bar.finish_and_clear();
+        let outcome = match outcome {
             Ok(outcome) => outcome,
             Err(error) => {
                 eprintln!("error: {error}");
@@ -318,6 +322,41 @@ pub fn run(args: &SimArgs) -> ExitCode {
     } else {
         ExitCode::from(EXIT_NOT_LANDED)
     }
+}
+
+/// The one mission's progress line on stderr (hidden when stderr is not a terminal): phase,
+/// simulated time and speed, so a long mission shows it is flying.
+fn mission_progress_bar() -> ProgressBar {
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {msg}")
+            .expect("a valid template")
+            .progress_chars("=> "),
+    );
+    bar
+}
+
+fn progress_sink(bar: &ProgressBar) -> sitl::mission::ProgressSink {
+    let bar = bar.clone();
+    sitl::mission::ProgressSink(std::sync::Arc::new(move |p: &SimProgress| {
+        bar.set_length(p.max_time_s.round() as u64);
+        bar.set_position(p.time_s.round() as u64);
+        bar.set_message(progress_message(p));
+    }))
+}
+
+/// `phase tracking (2/3) · 312 s simulated · 21.4× real time`.
+fn progress_message(p: &SimProgress) -> String {
+    let phase = match &p.phase {
+        Some((index, name)) => format!("phase {name} ({}/{})", index + 1, p.phase_count),
+        None => "starting".to_string(),
+    };
+    let speed = if p.wall_s > 0.0 {
+        format!("{:.1}× real time", p.time_s / p.wall_s)
+    } else {
+        "…".to_string()
+    };
+    format!("{phase} · {:.0} s simulated · {speed}", p.time_s)
 }
 
 /// Where the QoS plot goes beside `--svg PATH`: `PATH` with `-qos` before its extension.

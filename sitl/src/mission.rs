@@ -99,6 +99,38 @@ pub struct SimOptions {
     pub render_threads: usize,
     /// Record the mission to MCAP and/or serve it live to Foxglove.
     pub record: Option<SimRecording>,
+    /// Told how far the mission is, once a simulated second.
+    pub progress: Option<ProgressSink>,
+}
+
+/// How far a flying mission is.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimProgress {
+    pub time_s: f64,
+    /// Where the simulation gives up: the mission's length with a margin.
+    pub max_time_s: f64,
+    /// The phase in flight (index into the config's phases) and its name; `None` before the
+    /// first starts.
+    pub phase: Option<(usize, String)>,
+    pub phase_count: usize,
+    /// Wall time since the mission started flying.
+    pub wall_s: f64,
+}
+
+/// What a mission reports its progress to (the CLI's progress line).
+#[derive(Clone)]
+pub struct ProgressSink(pub std::sync::Arc<dyn Fn(&SimProgress) + Send + Sync>);
+
+impl std::fmt::Debug for ProgressSink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("ProgressSink")
+    }
+}
+
+impl PartialEq for ProgressSink {
+    fn eq(&self, other: &Self) -> bool {
+        std::sync::Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 /// Where a simulated mission is recorded, and the config files it flies (the recording keeps
@@ -127,6 +159,7 @@ impl Default for SimOptions {
             realism: Realism::default(),
             render_threads: 0,
             record: None,
+            progress: None,
         }
     }
 }
@@ -394,8 +427,21 @@ pub fn simulate(
     let mut finished_s = None;
     let phase_count = config.mission.phases.len();
     let pace_start = Instant::now();
+    let mut current_phase: Option<(usize, String)> = None;
+    let ticks_per_report = (1.0 / TICK_S).round().max(1.0) as u64;
     loop {
         let time_s = tick as f64 * TICK_S;
+        if let Some(progress) = &options.progress {
+            if tick % ticks_per_report == 0 {
+                (progress.0)(&SimProgress {
+                    time_s,
+                    max_time_s,
+                    phase: current_phase.clone(),
+                    phase_count,
+                    wall_s: pace_start.elapsed().as_secs_f64(),
+                });
+            }
+        }
         let now = Timestamp::from_nanos(MavlinkAutopilot::time_ns(time_s));
         if time_s > max_time_s {
             events.push((
@@ -552,6 +598,11 @@ pub fn simulate(
         }
         for event in &step.events {
             if let MissionEvent::PhaseStarted { phase, .. } = event {
+                current_phase = config
+                    .mission
+                    .phases
+                    .get(*phase)
+                    .map(|p| (*phase, p.name.clone()));
                 // The sequencer's last phase is the landing.
                 if *phase + 1 == phase_count {
                     landing_started_s = Some(time_s);

@@ -8,7 +8,7 @@ use runtime::registry::PluginRegistry;
 use sim::outcome::SimOutcome;
 use sim::realism::Realism;
 use sim::tractor::PathKind;
-use sitl::mission::{simulate, Faults, SimOptions};
+use sitl::mission::{simulate, Faults, ProgressSink, SimOptions, SimProgress};
 use std::path::Path;
 
 fn reference() -> (MissionModel, PluginRegistry) {
@@ -56,7 +56,14 @@ fn has_event(outcome: &SimOutcome, text: &str) -> bool {
 
 #[test]
 fn no_wind_straight_path_lands_within_15_cm() {
-    let outcome = fly(short(1));
+    let reports = std::sync::Arc::new(std::sync::Mutex::new(Vec::<SimProgress>::new()));
+    let sink = reports.clone();
+    let outcome = fly(SimOptions {
+        progress: Some(ProgressSink(std::sync::Arc::new(move |p: &SimProgress| {
+            sink.lock().unwrap().push(p.clone())
+        }))),
+        ..short(1)
+    });
     assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
     let error_m = outcome.touchdown_error_m.unwrap();
     assert!(error_m <= 0.15, "touchdown error {error_m} m");
@@ -70,6 +77,31 @@ fn no_wind_straight_path_lands_within_15_cm() {
         phases,
         vec!["transit started", "tracking started", "landing started"]
     );
+    // Progress came once a simulated second, in order, naming each phase from when it began
+    // (the events say when) until the next.
+    let reports = reports.lock().unwrap();
+    let flown_s = outcome.events.last().unwrap().0;
+    assert!(
+        reports.len() as f64 >= flown_s.floor(),
+        "{} reports",
+        reports.len()
+    );
+    let starts: Vec<f64> = outcome
+        .events
+        .iter()
+        .filter(|(_, e)| e.starts_with("phase ") && e.ends_with(" started"))
+        .map(|(t, _)| *t)
+        .collect();
+    for (k, report) in reports.iter().enumerate() {
+        assert!((report.time_s - k as f64).abs() < 1e-9, "{report:?}");
+        assert_eq!(report.phase_count, 3);
+        let begun = starts.iter().filter(|&&t| t < report.time_s).count();
+        let expected = ["transit", "tracking", "landing"];
+        match begun {
+            0 => assert_eq!(report.phase, None),
+            n => assert_eq!(report.phase, Some((n - 1, expected[n - 1].to_string()))),
+        }
+    }
     assert!(outcome.flight_energy_wh > 0.5 && outcome.companion_energy_wh > 0.0);
     assert!(outcome.battery_left_fraction < 1.0);
     // Every task flew, the hazard CNN on the CPU backend of this build.
