@@ -56,6 +56,9 @@ use std::collections::BinaryHeap;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+mod evaluation;
+pub use evaluation::{level_of, Evaluation};
+
 /// Relative tolerance under which two utilities are a tie (relative to the largest attainable
 /// mission utility). Summation-order rounding is around 1e-16 relative; this leaves a wide margin
 /// while staying far below any meaningful difference in utility tables.
@@ -79,7 +82,8 @@ pub struct PowerTerm {
     /// Indices into [`PlanProblem::tasks`]; all active in the phase, none in another term of it.
     pub tasks: Vec<usize>,
     /// Power (W) of every combination of the tasks' levels, row-major with the first task
-    /// slowest: the index of levels `(l0, l1)` is `l0 × levels(task1) + l1`.
+    /// slowest: the index of levels `(l0, l1)` is `l0 × levels(task1) + l1`
+    /// ([`PowerTerm::index_of`], [`PowerTerm::levels_at`]).
     pub power_w: Vec<f64>,
 }
 
@@ -375,7 +379,7 @@ fn phase_plan(
         at = point.left;
     }
     for (term, &combo) in phase.terms.iter().zip(&combos) {
-        for (&task, level) in term.tasks.iter().zip(decode(problem, term, combo)) {
+        for (&task, level) in term.tasks.iter().zip(term.levels_at(&problem.tasks, combo)) {
             level_of[task] = level;
         }
         companion_power_w += term.power_w[combo];
@@ -396,17 +400,6 @@ fn phase_plan(
         energy_wh: top.energy_wh,
         utility: top.utility,
     }
-}
-
-/// Levels of a term's tasks at table index `combo` (row-major, first task slowest).
-fn decode(problem: &PlanProblem, term: &PowerTerm, mut combo: usize) -> Vec<usize> {
-    let mut levels = vec![0; term.tasks.len()];
-    for (slot, &task) in term.tasks.iter().enumerate().rev() {
-        let count = problem.tasks[task].utility.len();
-        levels[slot] = combo % count;
-        combo /= count;
-    }
-    levels
 }
 
 fn build_phase(problem: &PlanProblem, phase: &PlanPhase, tolerance: f64) -> PhaseFrontier {
@@ -516,7 +509,7 @@ fn term_frontier(
         .iter()
         .enumerate()
         .filter_map(|(combo, &power_w)| {
-            let levels = decode(problem, term, combo);
+            let levels = term.levels_at(&problem.tasks, combo);
             if let Some((slot, level)) = pinned {
                 if levels[slot] != level {
                     return None;

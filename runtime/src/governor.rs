@@ -65,7 +65,9 @@
 use crate::energy::{energy_budget, BudgetError, MissionModel};
 use crate::telemetry::{BatteryTelemetry, MissionProgress};
 use power_models::battery::{BatteryError, BatteryEstimator};
-use power_models::planner::{solve, Plan, PlanError, PlanPhase, PlanProblem, TaskLevel};
+use power_models::planner::{
+    level_of, solve, Evaluation, Plan, PlanError, PlanPhase, PlanProblem, TaskLevel,
+};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use thiserror::Error;
@@ -421,25 +423,6 @@ pub struct ReplanSummary {
     pub decision: Decision,
 }
 
-/// Cost and worth of given levels on a problem.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Evaluation {
-    energy_wh: f64,
-    utility: f64,
-    duration_s: f64,
-}
-
-impl Evaluation {
-    /// Mean power over the levels' duration; `fallback_w` when they last no time.
-    fn mean_power_w(&self, fallback_w: f64) -> f64 {
-        if self.duration_s > 0.0 {
-            self.energy_wh * SECONDS_PER_HOUR / self.duration_s
-        } else {
-            fallback_w
-        }
-    }
-}
-
 /// A plan that fits its own budget.
 struct Candidate {
     levels: Vec<Vec<TaskLevel>>,
@@ -745,11 +728,7 @@ impl Governor {
 
     /// The model's power (flight + companion) of `phase` at the levels in force for it.
     pub fn model_power_w(&self, phase: usize) -> Option<f64> {
-        phase_power_w(
-            &self.problem,
-            self.problem.phases.get(phase)?,
-            self.levels.get(phase)?,
-        )
+        self.problem.phase_power_w(phase, self.levels.get(phase)?)
     }
 
     fn check_progress(&self, progress: MissionProgress) -> Result<(), GovernorError> {
@@ -881,7 +860,8 @@ impl Governor {
             }
             let levels: Vec<Vec<TaskLevel>> =
                 plan.phases.iter().map(|p| p.levels.clone()).collect();
-            let evaluation = evaluate(problem, &levels)
+            let evaluation = problem
+                .evaluate(&levels)
                 .ok_or("the planner's levels do not match its problem")?;
             let power_w = evaluation.mean_power_w(rating_power_w);
             let available_wh = self.available_wh(power_w)?;
@@ -927,7 +907,8 @@ impl Governor {
         let correction_ratio = self.correction_ratio;
         let problem = self.remaining_problem(correction_ratio);
         let current_levels = self.levels[phase..].to_vec();
-        let current = evaluate(&problem, &current_levels)
+        let current = problem
+            .evaluate(&current_levels)
             .ok_or("the levels in force do not match the mission's problem")?;
         let phase_power_w = self
             .model_power_w(phase)
@@ -1078,8 +1059,9 @@ impl Governor {
     fn cheapest(&self, problem: &PlanProblem, fallback_w: f64) -> Result<Candidate, String> {
         let plan = solve(problem, f64::MIN).map_err(|error| error.to_string())?;
         let levels: Vec<Vec<TaskLevel>> = plan.phases.iter().map(|p| p.levels.clone()).collect();
-        let evaluation =
-            evaluate(problem, &levels).ok_or("the planner's levels do not match its problem")?;
+        let evaluation = problem
+            .evaluate(&levels)
+            .ok_or("the planner's levels do not match its problem")?;
         let available_wh = self.available_wh(evaluation.mean_power_w(fallback_w))?;
         Ok(Candidate {
             levels,
@@ -1136,66 +1118,6 @@ impl Governor {
         }
         text
     }
-}
-
-fn level_of(levels: &[TaskLevel], task: usize) -> Option<usize> {
-    levels.iter().find(|l| l.task == task).map(|l| l.level)
-}
-
-/// The companion computer's modelled power in phase `phase` at `levels` (base plus every
-/// term; flight excluded): what a simulator drains the pack with for the levels it runs.
-pub fn companion_power_w(problem: &PlanProblem, phase: usize, levels: &[TaskLevel]) -> Option<f64> {
-    let phase = problem.phases.get(phase)?;
-    Some(phase_power_w(problem, phase, levels)? - phase.flight_power_w)
-}
-
-/// Flight + base + every term's power at `levels`; None if a level is missing or out of range.
-fn phase_power_w(problem: &PlanProblem, phase: &PlanPhase, levels: &[TaskLevel]) -> Option<f64> {
-    let mut power_w = phase.flight_power_w + phase.base_power_w;
-    for term in &phase.terms {
-        // Row-major, first task slowest, as the planner lays the table out.
-        let mut index = 0;
-        for &task in &term.tasks {
-            let count = problem.tasks.get(task)?.utility.len();
-            let level = level_of(levels, task).filter(|&l| l < count)?;
-            index = index * count + level;
-        }
-        power_w += term.power_w.get(index)?;
-    }
-    Some(power_w)
-}
-
-fn phase_duration_s(phase: &PlanPhase, levels: &[TaskLevel]) -> Option<f64> {
-    match &phase.duration_by_level {
-        Some(by_level) => by_level
-            .duration_s
-            .get(level_of(levels, by_level.task)?)
-            .copied(),
-        None => Some(phase.duration_s),
-    }
-}
-
-/// Energy, utility and duration of `levels` (one list per phase) on `problem`.
-fn evaluate(problem: &PlanProblem, levels: &[Vec<TaskLevel>]) -> Option<Evaluation> {
-    if levels.len() != problem.phases.len() {
-        return None;
-    }
-    let mut evaluation = Evaluation {
-        energy_wh: 0.0,
-        utility: 0.0,
-        duration_s: 0.0,
-    };
-    for (phase, phase_levels) in problem.phases.iter().zip(levels) {
-        let duration_s = phase_duration_s(phase, phase_levels)?;
-        evaluation.energy_wh +=
-            phase_power_w(problem, phase, phase_levels)? * duration_s / SECONDS_PER_HOUR;
-        evaluation.duration_s += duration_s;
-        for level in phase_levels {
-            let task = problem.tasks.get(level.task)?;
-            evaluation.utility += task.weight * task.utility.get(level.level)?;
-        }
-    }
-    Some(evaluation)
 }
 
 #[cfg(test)]
@@ -1487,9 +1409,9 @@ mod tests {
             soc -= current_a * STEP_S / SECONDS_PER_HOUR / spec.capacity_ah();
             time_s += STEP_S;
             progress.phase_elapsed_s += STEP_S;
-            let phase = &governor.problem().phases[progress.phase];
             let levels = governor.phase_levels(progress.phase).unwrap();
-            if progress.phase_elapsed_s >= phase_duration_s(phase, levels).unwrap() - 1e-9 {
+            let duration_s = governor.problem().phase_duration_s(progress.phase, levels);
+            if progress.phase_elapsed_s >= duration_s.unwrap() - 1e-9 {
                 if progress.phase + 1 == phase_count {
                     break;
                 }
@@ -1513,35 +1435,6 @@ mod tests {
     }
 
     // ---- planning arithmetic ------------------------------------------------------------------
-
-    /// The governor's own evaluation of levels (used for the levels in force) must agree with
-    /// the planner's accounting, including joint tables and per-level durations, and on the
-    /// shortened, corrected rest of a mission.
-    #[test]
-    fn evaluation_agrees_with_the_planner() {
-        let mut problems = vec![reference_model().plan_problem(), survey_problem()];
-        let mut governor =
-            survey_governor(60.0, EstimatorConfig::default(), GovernorConfig::default());
-        governor.progress = MissionProgress::new(2, 25.0);
-        problems.push(governor.remaining_problem(1.07));
-        for problem in &problems {
-            let cheapest = solve(problem, f64::MIN).unwrap().energy_wh;
-            let best = solve(problem, f64::MAX).unwrap().energy_wh;
-            for step in 0..=20 {
-                let budget_wh = cheapest + (best - cheapest) * f64::from(step) / 20.0;
-                let plan = solve(problem, budget_wh).unwrap();
-                let levels: Vec<Vec<TaskLevel>> =
-                    plan.phases.iter().map(|p| p.levels.clone()).collect();
-                let evaluation = evaluate(problem, &levels).unwrap();
-                let duration_s: f64 = plan.phases.iter().map(|p| p.duration_s).sum();
-                assert!(
-                    (evaluation.energy_wh - plan.energy_wh).abs() < 1e-9 * plan.energy_wh.max(1.0)
-                );
-                assert!((evaluation.utility - plan.utility).abs() < 1e-9);
-                assert_eq!(evaluation.duration_s, duration_s);
-            }
-        }
-    }
 
     #[test]
     fn the_rest_of_the_mission_is_shortened_and_corrected() {
@@ -1757,8 +1650,8 @@ mod tests {
         let final_levels = &all_levels(&governor)[phase..];
         let lowest_rest = &lowest[lowest.len() - final_levels.len()..];
         assert!(
-            evaluate(&problem, final_levels).unwrap().utility
-                > evaluate(&problem, lowest_rest).unwrap().utility
+            problem.evaluate(final_levels).unwrap().utility
+                > problem.evaluate(lowest_rest).unwrap().utility
         );
         assert!(flight.final_remaining_wh >= governor.reserve_wh() - 0.1);
         assert!(flight.land_now().is_empty());
@@ -1780,7 +1673,7 @@ mod tests {
         assert_eq!(flight.downs(), 0, "{:?}", flight.events);
         assert!(flight.ups() >= 1);
         let problem = governor.problem().clone();
-        let flown = evaluate(&problem, &all_levels(&governor)).unwrap();
+        let flown = problem.evaluate(&all_levels(&governor)).unwrap();
         assert!(flown.utility > initial, "{} vs {initial}", flown.utility);
         assert!(
             (flown.utility - 11.0).abs() < 1e-9,
