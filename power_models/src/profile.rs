@@ -65,6 +65,19 @@ pub struct ProfileError {
     /// Byte range of the offending key, value or cell; `None` when nothing in the text is to
     /// blame (a missing table, an empty file).
     pub span: Option<Range<usize>>,
+    /// The TOML library's error behind the message, where there is one.
+    #[source]
+    cause: Option<TomlError>,
+}
+
+/// The TOML library's error behind a [`ProfileError`] (boxed: it is large, and every
+/// `Result` of this module would carry the room for it).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TomlError {
+    #[error(transparent)]
+    Read(Box<toml::de::Error>),
+    #[error(transparent)]
+    Write(Box<toml::ser::Error>),
 }
 
 impl ProfileError {
@@ -72,6 +85,24 @@ impl ProfileError {
         Self {
             message: message.into(),
             span,
+            cause: None,
+        }
+    }
+
+    /// A TOML syntax or type error, located where the TOML library locates it.
+    fn read(error: toml::de::Error) -> Self {
+        Self {
+            message: error.message().to_string(),
+            span: error.span(),
+            cause: Some(TomlError::Read(Box::new(error))),
+        }
+    }
+
+    fn write(error: toml::ser::Error) -> Self {
+        Self {
+            message: format!("cannot write profile: {error}"),
+            span: None,
+            cause: Some(TomlError::Write(Box::new(error))),
         }
     }
 
@@ -208,8 +239,7 @@ impl Profile {
     /// power_std_w = 1.446            # optional, as are duration_s, cpu_power_w, gpu_power_w
     /// ```
     pub fn from_toml_str(text: &str) -> Result<Profile, ProfileError> {
-        let raw: RawProfile = toml::from_str(text)
-            .map_err(|e| ProfileError::new(e.message().to_string(), e.span()))?;
+        let raw: RawProfile = toml::from_str(text).map_err(ProfileError::read)?;
 
         let board_span = raw.board.span();
         let board = raw.board.into_inner();
@@ -324,8 +354,7 @@ impl Profile {
 
     /// Writes the profile in the format [`Profile::from_toml_str`] reads.
     pub fn to_toml_string(&self) -> Result<String, ProfileError> {
-        toml::to_string(self)
-            .map_err(|e| ProfileError::new(format!("cannot write profile: {e}"), None))
+        toml::to_string(self).map_err(ProfileError::write)
     }
 
     /// `(knob point, power_w)` of every sample, the input of a grid model.

@@ -172,6 +172,20 @@ fn toml_errors_point_at_the_offending_text() {
     );
 }
 
+/// A TOML mistake keeps the TOML library's error as its cause; a mistake of our own has none.
+#[test]
+fn toml_errors_keep_the_librarys_error_as_their_cause() {
+    let err = Profile::from_toml_str("board = \n").unwrap_err();
+    let cause = std::error::Error::source(&err).expect("a cause");
+    match cause.downcast_ref::<TomlError>() {
+        Some(TomlError::Read(toml)) => assert_eq!(toml.message(), err.message),
+        other => panic!("{other:?}"),
+    }
+    let err = Profile::from_toml_str(&GOOD.replace("power_w = 4\n", "power_w = -4\n")).unwrap_err();
+    assert!(err.message.contains("power_w"), "{}", err.message);
+    assert!(std::error::Error::source(&err).is_none());
+}
+
 #[test]
 fn toml_errors_without_a_value_to_blame() {
     let no_samples = "board = \"b\"\nmeter = \"m\"\nknobs = [\"a.b\"]\n";

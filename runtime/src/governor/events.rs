@@ -1,6 +1,7 @@
 //! What the governor reports: level changes, land-now, failed re-plans, and each re-plan's
 //! numbers.
 
+use super::ReplanError;
 use power_models::planner::TaskLevel;
 use serde::Serialize;
 use std::fmt;
@@ -106,8 +107,17 @@ pub enum GovernorEvent {
     /// A re-plan could not be computed; the levels in force stay.
     ReplanFailed {
         time_s: f64,
-        message: String,
+        /// Written as its message, as the event always was.
+        #[serde(rename = "message", serialize_with = "serialize_display")]
+        error: ReplanError,
     },
+}
+
+fn serialize_display<S: serde::Serializer>(
+    value: &impl fmt::Display,
+    serializer: S,
+) -> Result<S::Ok, S::Error> {
+    serializer.collect_str(value)
 }
 
 impl GovernorEvent {
@@ -156,8 +166,8 @@ impl GovernorEvent {
                 "land now: the cheapest levels need {:.2} Wh, {:.2} Wh available (short by {:.2} Wh)",
                 land.needed_wh, land.available_wh, land.shortfall_wh
             ),
-            GovernorEvent::ReplanFailed { time_s, message } => {
-                format!("re-plan failed at {time_s:.1} s: {message}")
+            GovernorEvent::ReplanFailed { time_s, error } => {
+                format!("re-plan failed at {time_s:.1} s: {error}")
             }
         }
     }
@@ -241,5 +251,43 @@ mod tests {
             correction_ratio: 1.1,
         });
         assert!(land.describe(&config.tasks).contains("short by 3.20 Wh"));
+    }
+
+    /// A failed re-plan keeps the error behind it as its cause and reads as it always did: its
+    /// message in the description and, under `message`, in the event's JSON.
+    #[test]
+    fn a_failed_replan_keeps_its_cause() {
+        let cause = power_models::battery::BatteryError::InvalidArgument {
+            name: "load_power_w",
+            value: -1.0,
+            expected: "a power >= 0 W",
+        };
+        let error = ReplanError::RemainingEnergy {
+            power_w: -1.0,
+            source: cause.clone(),
+        };
+        assert_eq!(
+            error.to_string(),
+            format!("remaining energy at -1 W: {cause}")
+        );
+        let source = std::error::Error::source(&error).expect("a cause");
+        assert_eq!(source.to_string(), cause.to_string());
+
+        let event = GovernorEvent::ReplanFailed {
+            time_s: 12.0,
+            error: error.clone(),
+        };
+        assert_eq!(
+            serde_json::to_value(&event).unwrap(),
+            serde_json::json!({
+                "event": "replan_failed",
+                "time_s": 12.0,
+                "message": error.to_string(),
+            })
+        );
+        assert_eq!(
+            event.describe(&[]),
+            format!("re-plan failed at 12.0 s: {error}")
+        );
     }
 }

@@ -76,6 +76,7 @@ pub use config::GovernorConfig;
 pub use events::{
     ChangeReason, Decision, GovernorEvent, LandNow, LevelChange, ReplanSummary, ReplanTrigger,
 };
+pub use replan::ReplanError;
 
 const SECONDS_PER_HOUR: f64 = 3600.0;
 

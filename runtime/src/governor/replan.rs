@@ -7,7 +7,9 @@ use super::{
     ReplanSummary, ReplanTrigger,
 };
 use crate::telemetry::MissionProgress;
-use power_models::planner::{solve, Evaluation, PlanPhase, PlanProblem, TaskLevel};
+use power_models::battery::BatteryError;
+use power_models::planner::{solve, Evaluation, PlanError, PlanPhase, PlanProblem, TaskLevel};
+use thiserror::Error;
 
 /// The budget depends on the plan's mean power and the plan on the budget; the fixed point is
 /// reached in one or two rounds because usable energy varies slowly with power.
@@ -17,6 +19,19 @@ const UTILITY_TOLERANCE: f64 = 1e-9;
 /// A switch up is triggered when a better plan would keep this many margins (and then keeps
 /// one): the gap between the two is the hysteresis band that absorbs slowly growing slack.
 const SWITCH_UP_TRIGGER_MARGINS: f64 = 2.0;
+
+/// Why a re-plan could not be computed; the levels in force stay.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ReplanError {
+    #[error("remaining energy at {power_w} W: {source}")]
+    RemainingEnergy { power_w: f64, source: BatteryError },
+    #[error("{0}")]
+    Plan(#[from] PlanError),
+    #[error("the planner's levels do not match its problem")]
+    PlanLevelsDoNotMatch,
+    #[error("the levels in force do not match the mission's problem")]
+    LevelsInForceDoNotMatch,
+}
 
 /// A plan that fits its own budget.
 struct Candidate {
@@ -57,11 +72,15 @@ impl Governor {
     }
 
     /// Remaining energy at a constant `power_w` minus the reserve.
-    fn available_wh(&self, power_w: f64) -> Result<f64, String> {
+    fn available_wh(&self, power_w: f64) -> Result<f64, ReplanError> {
+        Ok(self.remaining_energy_wh_at(power_w)? - self.reserve_wh)
+    }
+
+    /// The estimator's remaining energy at a constant `power_w`.
+    fn remaining_energy_wh_at(&self, power_w: f64) -> Result<f64, ReplanError> {
         self.estimator
             .remaining_energy_wh_at(power_w)
-            .map(|remaining_wh| remaining_wh - self.reserve_wh)
-            .map_err(|error| format!("remaining energy at {power_w} W: {error}"))
+            .map_err(|source| ReplanError::RemainingEnergy { power_w, source })
     }
 
     /// The best plan that fits, with `margin_wh` to spare, the budget rated at its own mean
@@ -71,10 +90,10 @@ impl Governor {
         problem: &PlanProblem,
         margin_wh: f64,
         mut rating_power_w: f64,
-    ) -> Result<Option<Candidate>, String> {
+    ) -> Result<Option<Candidate>, ReplanError> {
         for _ in 0..RATING_ROUNDS {
             let budget_wh = self.available_wh(rating_power_w)? - margin_wh;
-            let plan = solve(problem, budget_wh).map_err(|error| error.to_string())?;
+            let plan = solve(problem, budget_wh)?;
             if !plan.feasible {
                 return Ok(None);
             }
@@ -82,7 +101,7 @@ impl Governor {
                 plan.phases.iter().map(|p| p.levels.clone()).collect();
             let evaluation = problem
                 .evaluate(&levels)
-                .ok_or("the planner's levels do not match its problem")?;
+                .ok_or(ReplanError::PlanLevelsDoNotMatch)?;
             let power_w = evaluation.mean_power_w(rating_power_w);
             let available_wh = self.available_wh(power_w)?;
             if evaluation.energy_wh <= available_wh - margin_wh {
@@ -109,14 +128,14 @@ impl Governor {
         time_s: f64,
         events: &mut Vec<GovernorEvent>,
     ) {
-        if let Err(message) = self.try_replan(trigger, time_s, events) {
+        if let Err(error) = self.try_replan(trigger, time_s, events) {
             tracing::warn!(
                 target: "qosrt::governor",
                 time_s,
-                %message,
+                message = %error,
                 "re-plan failed; the levels in force stay"
             );
-            events.push(GovernorEvent::ReplanFailed { time_s, message });
+            events.push(GovernorEvent::ReplanFailed { time_s, error });
         }
         // Retry at the next period, not on every sample.
         self.last_replan_s = Some(time_s);
@@ -127,22 +146,19 @@ impl Governor {
         trigger: ReplanTrigger,
         time_s: f64,
         events: &mut Vec<GovernorEvent>,
-    ) -> Result<(), String> {
+    ) -> Result<(), ReplanError> {
         let phase = self.progress.phase;
         let correction_ratio = self.correction_ratio;
         let problem = self.remaining_problem(correction_ratio);
         let current_levels = self.levels[phase..].to_vec();
         let current = problem
             .evaluate(&current_levels)
-            .ok_or("the levels in force do not match the mission's problem")?;
+            .ok_or(ReplanError::LevelsInForceDoNotMatch)?;
         let phase_power_w = self
             .model_power_w(phase)
             .map_or(0.0, |w| w * correction_ratio);
         let rating_power_w = current.mean_power_w(phase_power_w);
-        let remaining_energy_wh = self
-            .estimator
-            .remaining_energy_wh_at(rating_power_w)
-            .map_err(|error| format!("remaining energy at {rating_power_w} W: {error}"))?;
+        let remaining_energy_wh = self.remaining_energy_wh_at(rating_power_w)?;
         self.watch = Some(DrainWatch {
             rating_power_w,
             remaining_at_replan_wh: remaining_energy_wh,
@@ -281,12 +297,12 @@ impl Governor {
     }
 
     /// The cheapest levels and the budget at their mean power.
-    fn cheapest(&self, problem: &PlanProblem, fallback_w: f64) -> Result<Candidate, String> {
-        let plan = solve(problem, f64::MIN).map_err(|error| error.to_string())?;
+    fn cheapest(&self, problem: &PlanProblem, fallback_w: f64) -> Result<Candidate, ReplanError> {
+        let plan = solve(problem, f64::MIN)?;
         let levels: Vec<Vec<TaskLevel>> = plan.phases.iter().map(|p| p.levels.clone()).collect();
         let evaluation = problem
             .evaluate(&levels)
-            .ok_or("the planner's levels do not match its problem")?;
+            .ok_or(ReplanError::PlanLevelsDoNotMatch)?;
         let available_wh = self.available_wh(evaluation.mean_power_w(fallback_w))?;
         Ok(Candidate {
             levels,
