@@ -16,7 +16,6 @@ use nalgebra::Vector3;
 use power_models::planner::TaskLevel;
 use runtime::config::load_file;
 use runtime::energy::load_mission_model;
-use runtime::governor::companion_power_w;
 use runtime::inference::{open_backend, BackendChoice, BackendOptions};
 use runtime::plugins::builtin_registry;
 use runtime::plugins::hazard_cnn::SHIPPED_MODEL;
@@ -173,13 +172,17 @@ fn main() {
     let hazard_config = &model.config.tasks[hazard];
     // The landing phase runs the same CPU tasks without the CNN: the board's power without it.
     let landing = model.config.mission.phases.len() - 1;
-    let without_w = companion_power_w(&problem, landing, &levels_with(0)).expect("modelled");
+    let without_w = problem
+        .companion_power_w(landing, &levels_with(0))
+        .expect("modelled");
     println!(
         "companion power by hazard CNN rate, tracking phase, the other tasks at their top levels \
          (without the CNN: {without_w:.2} W, the landing phase's):"
     );
     for (level, rate) in hazard_config.levels.iter().enumerate() {
-        let power_w = companion_power_w(&problem, phase, &levels_with(level)).expect("modelled");
+        let power_w = problem
+            .companion_power_w(phase, &levels_with(level))
+            .expect("modelled");
         let busy = total_ms * rate / 1e3;
         println!(
             "  {rate:>5} fps: {power_w:.2} W, of which the CNN {:.2} W ({:.0} %); here its CPU backend would keep one core {:.1} % busy",

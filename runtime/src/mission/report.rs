@@ -60,8 +60,8 @@ impl GovernorDecision {
                 Vec::new(),
                 "even the lowest levels do not fit: land now".to_string(),
             ),
-            GovernorEvent::ReplanFailed { message, .. } => {
-                ("replan_failed", Vec::new(), message.clone())
+            GovernorEvent::ReplanFailed { error, .. } => {
+                ("replan_failed", Vec::new(), error.to_string())
             }
         };
         Self {

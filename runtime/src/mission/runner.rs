@@ -15,7 +15,7 @@ use crate::bus::{Publisher, Subscriber};
 use crate::camera::{CameraSource, CameraSourceError};
 use crate::clock::Timestamp;
 use crate::energy::MissionModel;
-use crate::governor::{companion_power_w, Governor, GovernorEvent};
+use crate::governor::{Governor, GovernorEvent};
 use crate::link::{FailsafeAction, LinkError, LinkStatus, LinkUpdate, MavlinkLink, VehicleCommand};
 use crate::record::channels::StepRecord;
 use crate::record::recorder::{BatteryEstimate, QosLevels, TaskLevelRecord};
@@ -372,7 +372,10 @@ impl<S: TaskScheduler> MissionRunner<S> {
             return 0.0;
         };
         let levels = self.effective_levels(phase);
-        companion_power_w(self.governor.problem(), phase, &levels).unwrap_or(0.0)
+        self.governor
+            .problem()
+            .companion_power_w(phase, &levels)
+            .unwrap_or(0.0)
     }
 
     fn take_telemetry(&mut self, now: Timestamp, update: &LinkUpdate) -> Result<(), RunnerError> {
