@@ -53,7 +53,12 @@ pub enum PtuStereoCommand {
         #[arg(long, default_value_t = 1000.0, value_name = "M")]
         start_m: f64,
         /// Ground speed.
-        #[arg(long = "speed-mps", default_value_t = 25.0, value_name = "M_S")]
+        #[arg(
+            long = "speed-m-s",
+            alias = "speed-mps",
+            default_value_t = 25.0,
+            value_name = "M_S"
+        )]
         speed_m_s: f64,
         /// Camera frame rate.
         #[arg(long, default_value_t = 25.0)]

@@ -25,13 +25,23 @@ pub struct SimArgs {
     #[arg(long, default_value = "straight")]
     pub path: PathKind,
     /// Mean wind speed (the seed's gust model).
-    #[arg(long = "wind-mps", default_value_t = 0.0, value_name = "M_S")]
+    #[arg(
+        long = "wind-m-s",
+        alias = "wind-mps",
+        default_value_t = 0.0,
+        value_name = "M_S"
+    )]
     pub wind_m_s: f64,
     /// Dryden turbulence around the mean wind instead of the seed's gusts.
     #[arg(long)]
     pub dryden: bool,
     /// The tractor's speed.
-    #[arg(long = "platform-speed-mps", default_value_t = 1.5, value_name = "M_S")]
+    #[arg(
+        long = "platform-speed-m-s",
+        alias = "platform-speed-mps",
+        default_value_t = 1.5,
+        value_name = "M_S"
+    )]
     pub platform_speed_m_s: f64,
     /// Random seed (wind, camera noise, hazards); the same seed flies the same mission.
     #[arg(long, default_value_t = 0)]
@@ -180,14 +190,14 @@ pub const EXIT_NOT_LANDED: u8 = 4;
 pub fn run(args: &SimArgs) -> ExitCode {
     if !(args.wind_m_s.is_finite() && (0.0..=30.0).contains(&args.wind_m_s)) {
         eprintln!(
-            "error: --wind-mps must be within [0, 30] m/s, found {}",
+            "error: --wind-m-s must be within [0, 30] m/s, found {}",
             args.wind_m_s
         );
         return ExitCode::from(EXIT_INVALID_CONFIG);
     }
     if !(args.platform_speed_m_s.is_finite() && (0.0..=10.0).contains(&args.platform_speed_m_s)) {
         eprintln!(
-            "error: --platform-speed-mps must be within [0, 10] m/s, found {}",
+            "error: --platform-speed-m-s must be within [0, 10] m/s, found {}",
             args.platform_speed_m_s
         );
         return ExitCode::from(EXIT_INVALID_CONFIG);

@@ -217,7 +217,7 @@ fn more_ptu_noise_means_larger_errors_and_bad_arguments_are_refused() {
     let ratio = far(&noisy) / far(&quiet);
     assert!((5.0..15.0).contains(&ratio), "{ratio}");
 
-    let bad = qosrt(&["ptu-stereo", "approach", "--speed-mps", "0"]);
+    let bad = qosrt(&["ptu-stereo", "approach", "--speed-m-s", "0"]);
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("ground_speed_m_s"));
     let bad = qosrt(&["ptu-stereo", "approach", "--interval-m", "-5"]);

@@ -29,7 +29,7 @@ fn the_seed000_system_lands_on_a_figure_eight_ugv_and_localises_it() {
         "configs/seed000_hybrid.toml",
         "--path",
         "figure8",
-        "--platform-speed-mps",
+        "--platform-speed-m-s",
         "0.5",
         "--tracking-s",
         "20",

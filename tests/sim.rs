@@ -46,10 +46,12 @@ fn the_reference_mission_lands_and_reports_as_json_and_svg() {
 #[test]
 fn bad_arguments_are_named_and_refused() {
     for (args, expected) in [
-        (vec!["sim", "--wind-mps=-3"], "--wind-mps"),
+        (vec!["sim", "--wind-m-s=-3"], "--wind-m-s"),
+        // The old spelling still reaches the same flag.
+        (vec!["sim", "--wind-mps=-3"], "--wind-m-s must be within"),
         (
-            vec!["sim", "--platform-speed-mps", "40"],
-            "--platform-speed-mps",
+            vec!["sim", "--platform-speed-m-s", "40"],
+            "--platform-speed-m-s",
         ),
         (vec!["sim", "--runs", "0"], "--runs"),
         (vec!["sim", "--path", "zigzag"], "figure8"),

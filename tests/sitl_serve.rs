@@ -228,7 +228,7 @@ fn the_real_px4_lands_on_the_moving_pad_the_world_renders() {
             &format!("px4-sih:{}", px4.instance),
             "--video-port",
             &video_port,
-            "--platform-speed-mps",
+            "--platform-speed-m-s",
             "1.0",
             "--meeting-point-ne-m",
             "5,0",
