@@ -465,9 +465,9 @@ mod tests {
         frame_index: u64,
         camera: PinholeCamera,
         depth_camera: PinholeCamera,
-        state: Option<Publisher<VehicleState>>,
-        frames: Option<Publisher<CameraFrame>>,
-        depths: Option<Publisher<DepthFrame>>,
+        state: Publisher<VehicleState>,
+        frames: Publisher<CameraFrame>,
+        depths: Publisher<DepthFrame>,
         markers: Option<Publisher<MarkerObservation>>,
     }
 
@@ -494,9 +494,9 @@ mod tests {
                 frame_index: 0,
                 camera: PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap(),
                 depth_camera: PinholeCamera::from_fov(160, 120, 60f64.to_radians()).unwrap(),
-                state: Some(build.output(VEHICLE_STATE)?),
-                frames: Some(build.output(CAMERA_FRAME)?),
-                depths: Some(build.output(DEPTH_FRAME)?),
+                state: build.output(VEHICLE_STATE)?,
+                frames: build.output(CAMERA_FRAME)?,
+                depths: build.output(DEPTH_FRAME)?,
                 markers,
             })
         }
@@ -507,7 +507,7 @@ mod tests {
             let c = &self.config;
             let now = ctx.now();
             let t = now.as_secs_f64();
-            self.state.as_ref().unwrap().publish(
+            self.state.publish(
                 now,
                 VehicleState {
                     attitude: c.attitude,
@@ -531,7 +531,7 @@ mod tests {
                 ..RenderOptions::default()
             };
             let image = render(&self.camera, &pose, &scene, &options).unwrap();
-            self.frames.as_ref().unwrap().publish(
+            self.frames.publish(
                 now,
                 CameraFrame {
                     vehicle_at_capture: None,
@@ -545,7 +545,7 @@ mod tests {
                 DepthMode::Missing => None,
             };
             if let Some(depth) = depth {
-                self.depths.as_ref().unwrap().publish(
+                self.depths.publish(
                     now,
                     DepthFrame {
                         frame_index: self.frame_index,
