@@ -57,7 +57,7 @@ mod virtual_time;
 #[cfg(test)]
 mod tests;
 
-pub use real_time::{Pinning, RealTimeOptions, RealTimeScheduler};
+pub use real_time::{PinError, Pinning, RealTimeOptions, RealTimeScheduler};
 pub use resources::{ExclusiveResource, ResourceError, ResourceLease, Resources};
 pub use stats::{DurationSummary, TaskStats};
 pub use task_scheduler::TaskScheduler;
@@ -102,11 +102,15 @@ pub enum SchedulerError {
     UnknownTask { task: String, known: String },
     #[error("task `{task}` is defined twice")]
     DuplicateTask { task: String },
-    #[error("task `{task}`: could not pin its worker to cores {cores:?}: {reason}")]
+    // The cores appear twice, as they always have.
+    #[error(
+        "task `{task}`: could not pin its worker to cores {cores:?}: cores {cores:?}: {source}"
+    )]
     Pinning {
         task: String,
         cores: Vec<usize>,
-        reason: String,
+        #[source]
+        source: PinError,
     },
     #[error("could not start the worker thread of task `{task}`: {source}")]
     Spawn {

@@ -68,7 +68,6 @@ pub fn simulate(
     }
     let model = &adjusted;
     let config = &model.config;
-    let setup = |e: &dyn std::fmt::Display| SimError::Setup(e.to_string());
 
     // The runtime: every configured task whose plugin this build has.
     let mut skipped_tasks = Vec::new();
@@ -101,9 +100,9 @@ pub fn simulate(
         ..TractorParams::default()
     };
     let realism = &options.realism;
-    realism.validate().map_err(|e| setup(&e))?;
+    realism.validate().map_err(setup)?;
     let mut tractor = Tractor::new(options.path, tractor_params, meeting, 0.0)
-        .map_err(|e| setup(&e))?
+        .map_err(setup)?
         .parked();
     if realism.driver != DriverBehaviour::SCRIPTED {
         tractor = tractor.with_driver(realism.driver, options.seed);
@@ -112,15 +111,15 @@ pub fn simulate(
         tractor = tractor.with_rough_field(realism.pad, options.seed);
     }
     let mut vehicle =
-        Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(|e| setup(&e))?;
-    if let Some(gimbal) = camera_gimbal(model).map_err(|e| setup(&e))? {
+        Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(setup)?;
+    if let Some(gimbal) = camera_gimbal(model).map_err(setup)? {
         vehicle = vehicle.with_gimbal(gimbal);
     }
     let mut wind = Wind::new(
         wind_config(options.wind_speed_m_s, options.wind_kind),
         options.seed ^ 0x5749_4e44,
     )
-    .map_err(|e| setup(&e))?;
+    .map_err(setup)?;
     let camera_config = SimCameraConfig {
         exposure_ms: realism.camera.exposure_ms,
         render_threads: options.render_threads,
@@ -133,45 +132,43 @@ pub fn simulate(
     let mut in_transit: std::collections::VecDeque<(f64, f64, PendingFrame)> =
         std::collections::VecDeque::new();
     let mut latency_rng = SplitMix64::new(options.seed ^ 0x006c_6174_656e_6379);
-    let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
+    let mut camera = SimCamera::new(camera_config, options.seed).map_err(setup)?;
     // The hazards stand beside the track the tractor will drive while the CNN watches.
     let watch_s: f64 = model.config.mission.phases[1..model.config.mission.phases.len() - 1]
         .iter()
         .map(|p| p.duration_s)
         .sum();
-    let track = future_track_ne_m(&tractor, watch_s).map_err(|e| setup(&e))?;
-    let hazards = HazardField::along_track(options.seed, &track, &track_scatter(&track))
-        .map_err(|e| setup(&e))?;
+    let track = future_track_ne_m(&tractor, watch_s).map_err(setup)?;
+    let hazards =
+        HazardField::along_track(options.seed, &track, &track_scatter(&track)).map_err(setup)?;
     let hazards_total = hazards.hazards.len();
     let mut scene = SimScene::new(options.seed)
         .with_tractor_body(TractorBody::default())
-        .map_err(|e| setup(&e))?
+        .map_err(setup)?
         .with_hazards(hazards)
         .with_pad_occluders(pad_occluders(&realism.camera, options.seed));
     // The world's pack has the config's capacity, cells and resistance.
-    let spec = model.battery_spec(None).map_err(|e| setup(&e))?;
+    let spec = model.battery_spec(None).map_err(setup)?;
     let pack = SimPack::new(
         spec.capacity_mah,
         spec.cell_count,
         spec.internal_resistance_ohm,
     )
-    .map_err(|e| setup(&e))?;
+    .map_err(setup)?;
     let mut battery = SimBattery::new(pack);
     let hover_power_w = hover_power_w(model)
         .ok_or_else(|| SimError::Setup("[flight] gives no hover_power_w".into()))?;
     let rotors = RotorPowerModel::iris(hover_power_w);
-    rotors.validate().map_err(|e| setup(&e))?;
+    rotors.validate().map_err(setup)?;
 
     // MAVLink over the loopback, as with PX4 SITL: the autopilot sends to the runtime's port.
-    let link_error = |e: &dyn std::fmt::Display| SimError::Link(e.to_string());
-    let link =
-        MavlinkLink::bind_local_ephemeral(LinkConfig::default()).map_err(|e| link_error(&e))?;
+    let link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).map_err(link_error)?;
     let runtime_addr = link
         .local_addr()
         .ok_or_else(|| SimError::Link("the link has no local UDP address".into()))?;
     let telemetry = &realism.telemetry;
     let mut autopilot = MavlinkAutopilot::bind_local(runtime_addr, !options.real_time)
-        .map_err(|e| link_error(&e))?
+        .map_err(link_error)?
         .with_stream_rates(StreamRates {
             attitude_hz: telemetry.attitude_rate_hz,
             position_hz: telemetry.position_rate_hz,
@@ -216,7 +213,7 @@ pub fn simulate(
     )
     .map_err(|error| match error {
         RunnerError::FixedLevel { task, value, why } => SimError::FixedLevel { task, value, why },
-        other => SimError::Setup(other.to_string()),
+        other => SimError::Setup(other.into()),
     })?;
     if let Some(record) = &options.record {
         let mut header = RecordingHeader::new(
@@ -236,7 +233,7 @@ pub fn simulate(
         if let Some(port) = recorder.live_port() {
             events.push((0.0, format!("serving Foxglove's WebSocket on port {port}")));
         }
-        runner.record(recorder).map_err(|e| setup(&e))?;
+        runner.record(recorder).map_err(setup)?;
     }
     // The tasks that look at camera frames: a frame is rendered only when one will.
     let camera_consumers: Vec<String> = config
@@ -252,26 +249,22 @@ pub fn simulate(
         .iter()
         .any(|t| DEPTH_PLUGINS.contains(&t.plugin.as_str()) && registry.contains(&t.plugin));
     let mut stereo = if reads_depth {
-        let camera = SimStereoCamera::new(options.stereo, options.seed).map_err(|e| setup(&e))?;
-        let publisher = bus
-            .publisher::<DepthFrame>(DEPTH_FRAME)
-            .map_err(|e| setup(&e))?;
+        let camera = SimStereoCamera::new(options.stereo, options.seed).map_err(setup)?;
+        let publisher = bus.publisher::<DepthFrame>(DEPTH_FRAME).map_err(setup)?;
         Some((camera, publisher))
     } else {
         None
     };
     let mut relative_states = bus
         .subscriber::<RelativeState>(RELATIVE_STATE)
-        .map_err(|e| setup(&e))?;
+        .map_err(setup)?;
     let mut localisation = LocalisationAccumulator::default();
     let hazard_task = config
         .tasks
         .iter()
         .find(|t| t.plugin == "hazard_cnn" && registry.contains(&t.plugin))
         .map(|t| t.name.clone());
-    let mut hazard_reports = bus
-        .subscriber::<HazardReport>(HAZARDS)
-        .map_err(|e| setup(&e))?;
+    let mut hazard_reports = bus.subscriber::<HazardReport>(HAZARDS).map_err(setup)?;
     let mut hazard_score = HazardScore::default();
     let mut hazard_backend: Option<&'static str> = None;
 
@@ -322,9 +315,7 @@ pub fn simulate(
                         })
                 });
             if wanted {
-                scene
-                    .set_pad_pose(pad_pose(&tractor))
-                    .map_err(|e| setup(&e))?;
+                scene.set_pad_pose(pad_pose(&tractor)).map_err(setup)?;
                 let pose = vehicle.camera_pose();
                 // Rendered on other threads during the frame's latency; the loop goes on.
                 match camera.capture_deferred(time_s, &pose, &scene) {
@@ -386,25 +377,23 @@ pub fn simulate(
 
         // Autopilot → runtime → autopilot: in lockstep, or as the datagrams come.
         let snapshot = estimate.report(&vehicle.snapshot(time_s, battery.reading()));
-        let t_ns = autopilot.publish(&snapshot).map_err(|e| link_error(&e))?;
+        let t_ns = autopilot.publish(&snapshot).map_err(link_error)?;
         let lockstep = (!options.real_time).then_some(t_ns);
         let step = runner
             .step(runtime_now_s, lockstep)
             .map_err(|error| match error {
                 RunnerError::Scheduler(error) => SimError::Scheduler(error),
-                other => SimError::Link(other.to_string()),
+                other => SimError::Link(other.into()),
             })?;
         let received = match lockstep {
             Some(t_ns) => autopilot.receive_lockstep(t_ns, LOCKSTEP_TIMEOUT),
             None => autopilot.receive(),
         }
-        .map_err(|e| link_error(&e))?;
+        .map_err(link_error)?;
         for received in received {
             let result = vehicle.command(received.command, time_s);
             if let Some(pending) = received.ack {
-                autopilot
-                    .ack(pending, &result)
-                    .map_err(|e| link_error(&e))?;
+                autopilot.ack(pending, &result).map_err(link_error)?;
             }
         }
 
@@ -478,13 +467,13 @@ pub fn simulate(
         for substep in 0..substeps {
             let t_s = time_s + substep as f64 * PHYSICS_DT_S;
             if tractor_moving {
-                tractor.step(PHYSICS_DT_S).map_err(|e| setup(&e))?;
+                tractor.step(PHYSICS_DT_S).map_err(setup)?;
             }
             let position = vehicle.position_ned_m();
             let force = wind.force_ned_n(t_s, -position.z, vehicle.velocity_ned_m_s());
             vehicle
                 .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
-                .map_err(|e| setup(&e))?;
+                .map_err(setup)?;
         }
         let flight_w = flight_power_w(&vehicle, &mut wind, &rotors, time_s);
         // The companion draws what the tasks of the phase in flight cost at their levels.

@@ -90,14 +90,17 @@ impl Default for SimOptions {
     }
 }
 
+/// What failed beneath a setup or link error: the underlying error, or a message.
+pub type Cause = Box<dyn std::error::Error + Send + Sync>;
+
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
     #[error("simulation setup: {0}")]
-    Setup(String),
+    Setup(#[source] Cause),
     #[error("scheduler: {0}")]
     Scheduler(#[from] runtime::scheduler::SchedulerError),
     #[error("MAVLink: {0}")]
-    Link(String),
+    Link(#[source] Cause),
     #[error(transparent)]
     Record(#[from] RecordError),
     #[error("--fix {task}={value}: {why}")]
@@ -114,3 +117,13 @@ pub const TIME_MARGIN_S: f64 = 120.0;
 
 /// Where the tractor waits for the vehicle, north of the take-off point.
 pub(super) const MEETING_POINT_NORTH_M: f64 = 15.0;
+
+/// A setup failure, keeping its cause.
+pub(crate) fn setup(error: impl Into<Cause>) -> SimError {
+    SimError::Setup(error.into())
+}
+
+/// A link failure, keeping its cause.
+pub(crate) fn link_error(error: impl Into<Cause>) -> SimError {
+    SimError::Link(error.into())
+}
