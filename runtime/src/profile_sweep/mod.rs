@@ -62,7 +62,9 @@ pub enum SweepError {
     #[error(transparent)]
     Scheduler(#[from] SchedulerError),
     #[error("synthetic inputs: {0}")]
-    Inputs(String),
+    Frames(#[source] crate::dry_run::DryRunError),
+    #[error("synthetic inputs: {0}")]
+    Inputs(#[source] crate::bus::BusError),
     #[error("meter {meter}: {failed} of {attempts} readings failed while measuring {point}; the last: {last}")]
     MeterFailed {
         meter: String,

@@ -267,18 +267,18 @@ pub fn run_sweep(
 
     let tasks: Vec<_> = plan.tasks.iter().map(|&i| &config.tasks[i]).collect();
     let task_names: Vec<String> = tasks.iter().map(|t| t.name.clone()).collect();
-    let frames = synthetic_frames().map_err(|e| SweepError::Inputs(e.to_string()))?;
+    let frames = synthetic_frames().map_err(SweepError::Frames)?;
     let mut scheduler = SchedulerBuilder::new(registry)
         .tasks(tasks.iter().copied())
         .build_real_time(RealTimeOptions::default())?;
     let camera = scheduler
         .bus()
         .publisher::<CameraFrame>(CAMERA_FRAME)
-        .map_err(|e| SweepError::Inputs(e.to_string()))?;
+        .map_err(SweepError::Inputs)?;
     let vehicle = scheduler
         .bus()
         .publisher::<VehicleState>(VEHICLE_STATE)
-        .map_err(|e| SweepError::Inputs(e.to_string()))?;
+        .map_err(SweepError::Inputs)?;
     scheduler.start()?;
     for knob in &plan.held {
         scheduler.set_level(&config.tasks[knob.task].name, knob.levels[0])?;
