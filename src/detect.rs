@@ -112,8 +112,8 @@ fn detect_file(detectors: &mut Detectors, path: &Path) -> FileReport {
     };
     let frame = match load_gray(path) {
         Ok(frame) => frame,
-        Err(message) => {
-            report.error = Some(message);
+        Err(error) => {
+            report.error = Some(error.to_string());
             return report;
         }
     };

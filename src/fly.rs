@@ -108,21 +108,32 @@ pub fn run(args: &FlyArgs) -> ExitCode {
 enum Failure {
     /// Already reported, located.
     Config,
-    Other(String),
+    /// Anything else, with its cause.
+    Other(Box<dyn std::error::Error>),
 }
 
-impl<E: std::fmt::Display> From<E> for Failure {
+impl<E: Into<Box<dyn std::error::Error>>> From<E> for Failure {
     fn from(error: E) -> Self {
-        Failure::Other(error.to_string())
+        Failure::Other(error.into())
     }
+}
+
+/// The link's signing key file could not be read.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: cannot read the signing key: {source}", path.display())]
+struct SigningKeyError {
+    path: std::path::PathBuf,
+    #[source]
+    source: std::io::Error,
 }
 
 fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
     if let Some(duration_s) = args.duration_s {
         if !(duration_s.is_finite() && duration_s > 0.0) {
-            return Err(Failure::Other(format!(
+            return Err(format!(
                 "--duration-s must be a positive number of seconds, found {duration_s}"
-            )));
+            )
+            .into());
         }
     }
     let registry = builtin_registry()?;
@@ -305,15 +316,13 @@ fn signing_key(loaded: &LoadedConfig) -> Result<Option<[u8; 32]>, Failure> {
         return Ok(None);
     };
     let path = loaded.base_dir().join(file);
-    let bytes = std::fs::read(&path).map_err(|e| {
-        Failure::Other(format!(
-            "{}: cannot read the signing key: {e}",
-            path.display()
-        ))
+    let bytes = std::fs::read(&path).map_err(|source| SigningKeyError {
+        path: path.clone(),
+        source,
     })?;
     parse_signing_key(&bytes)
         .map(Some)
-        .map_err(|why| Failure::Other(format!("{}: {why}", path.display())))
+        .map_err(|why| format!("{}: {why}", path.display()).into())
 }
 
 /// A MAVLink 2 signing key from a key file's bytes.

@@ -216,35 +216,67 @@ fn slug(text: &str) -> String {
 
 /// Checks up front that the profile can be written, so an hour of measuring is never lost to
 /// an existing file or a missing folder.
-fn prepare_out(out: &Path, force: bool) -> Result<(), String> {
+fn prepare_out(out: &Path, force: bool) -> Result<(), OutputError> {
     if out.exists() && !force {
-        return Err(format!(
-            "{} exists: choose another --out, or --force to replace it",
-            out.display()
-        ));
+        return Err(OutputError::Exists(out.to_path_buf()));
     }
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)
-            .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+        std::fs::create_dir_all(dir).map_err(|source| OutputError::CreateDir {
+            dir: dir.to_path_buf(),
+            source,
+        })?;
     }
     Ok(())
 }
 
+/// Why the profile could not be written.
+#[derive(Debug, thiserror::Error)]
+enum OutputError {
+    #[error("{} exists: choose another --out, or --force to replace it", .0.display())]
+    Exists(PathBuf),
+    #[error("cannot create {}: {source}", dir.display())]
+    CreateDir {
+        dir: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("cannot write {}: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The profile's own message (power_models gives no error type to keep).
+    #[error("{0}")]
+    Serialise(String),
+    #[error("the profile does not read back: {0}")]
+    ReadBack(String),
+}
+
 /// Writes via a temporary file in the same folder, so a profile is never half written.
-fn write_file(path: &Path, text: &str) -> Result<(), String> {
+fn write_file(path: &Path, text: &str) -> Result<(), OutputError> {
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".partial");
     let tmp = PathBuf::from(tmp);
     std::fs::write(&tmp, text)
         .and_then(|()| std::fs::rename(&tmp, path))
-        .map_err(|e| format!("cannot write {}: {e}", path.display()))
+        .map_err(|source| OutputError::Write {
+            path: path.to_path_buf(),
+            source,
+        })
 }
 
 /// The profile as TOML, checked to read back, then written (and as powprofiler CSV).
-fn write_profile(profile: &Profile, out: &Path, powprofiler: Option<&Path>) -> Result<(), String> {
-    let body = profile.to_toml_string().map_err(|e| e.message)?;
+fn write_profile(
+    profile: &Profile,
+    out: &Path,
+    powprofiler: Option<&Path>,
+) -> Result<(), OutputError> {
+    let body = profile
+        .to_toml_string()
+        .map_err(|e| OutputError::Serialise(e.message))?;
     if let Err(error) = Profile::from_toml_str(&body) {
-        return Err(format!("the profile does not read back: {}", error.message));
+        return Err(OutputError::ReadBack(error.message));
     }
     let text = format!(
         "# Power profile of {} written by `qosrt profile`; `source` says how it was measured.\n{body}",
@@ -644,7 +676,7 @@ fn from_csv(args: &ProfileArgs) -> ExitCode {
             .join("hand-measured.toml")
     });
     if let Err(error) = prepare_out(&out, args.force) {
-        return fail(error);
+        return fail(error.to_string());
     }
     if let Err(error) = write_profile(&profile, &out, args.powprofiler.as_deref()) {
         eprintln!("error: {error}");
@@ -656,39 +688,4 @@ fn from_csv(args: &ProfileArgs) -> ExitCode {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn from_csv_arguments() {
-        let (point, path) =
-            parse_from_csv("hazard.rate_fps=4,detection.rate_fps=0.5:a/b.csv").unwrap();
-        assert_eq!(
-            point,
-            [
-                ("hazard.rate_fps".to_string(), 4.0),
-                ("detection.rate_fps".to_string(), 0.5)
-            ]
-        );
-        assert_eq!(path, PathBuf::from("a/b.csv"));
-        for (text, needle) in [
-            ("trace.csv", "expected KNOB=VALUE"),
-            ("a.b=1:", "no file"),
-            ("a.b:x.csv", "is not KNOB=VALUE"),
-            ("a.b=x:x.csv", "`x` is not a number"),
-            ("a.b=1,a.b=2:x.csv", "given twice"),
-        ] {
-            let error = parse_from_csv(text).unwrap_err();
-            assert!(error.contains(needle), "{text}: {error}");
-        }
-    }
-
-    #[test]
-    fn slugs() {
-        assert_eq!(
-            slug("NVIDIA Jetson Nano Developer Kit"),
-            "nvidia-jetson-nano-developer-kit"
-        );
-        assert_eq!(slug("  a__b  "), "a-b");
-    }
-}
+mod tests;

@@ -116,7 +116,7 @@ impl Default for ServeOptions {
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
     #[error("world setup: {0}")]
-    Setup(String),
+    Setup(#[source] crate::mission::Cause),
     #[error(transparent)]
     Px4Sih(#[from] crate::px4_sih::Px4SihError),
     #[error("simulated autopilot: {0}")]
@@ -192,7 +192,6 @@ pub fn serve(
     stop: &AtomicBool,
     mut on_truth: impl FnMut(&Truth, Option<&ServedTouchdown>),
 ) -> Result<ServeOutcome, ServeError> {
-    let setup = |e: &dyn std::fmt::Display| ServeError::Setup(e.to_string());
     let px4 = matches!(options.vehicle, ServeVehicle::Px4Sih { .. });
     // SIH's vehicle knows only the ground: its pad lies on it.
     let tractor_params = TractorParams {
@@ -210,13 +209,13 @@ pub fn serve(
         options.meeting_point_ne_m,
         0.0,
     )
-    .map_err(|e| setup(&e))?
+    .map_err(setup)?
     .parked();
     let mut scene = SimScene::new(options.seed);
     if !px4 {
         scene = scene
             .with_tractor_body(TractorBody::default())
-            .map_err(|e| setup(&e))?;
+            .map_err(setup)?;
     }
     let camera_config = camera_config(model);
     let (width_px, height_px, rate_fps) = (
@@ -224,33 +223,33 @@ pub fn serve(
         camera_config.height_px,
         camera_config.rate_fps,
     );
-    let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
-    let gimbal = camera_gimbal(model).map_err(|e| setup(&e))?;
+    let mut camera = SimCamera::new(camera_config, options.seed).map_err(setup)?;
+    let gimbal = camera_gimbal(model).map_err(setup)?;
     if px4 && gimbal.is_some() {
         // SIH streams PX4's own telemetry: no gimbal reports the camera's attitude.
         return Err(setup(
-            &"PX4 SIH flies no camera gimbal: set the tracker's camera_mount = \"body\"",
+            "PX4 SIH flies no camera gimbal: set the tracker's camera_mount = \"body\"",
         ));
     }
     let mut video = open_video(options.video_port, width_px, height_px, rate_fps)?;
 
     let mut flyer = match options.vehicle {
         ServeVehicle::Simulated => {
-            let spec = model.battery_spec(None).map_err(|e| setup(&e))?;
+            let spec = model.battery_spec(None).map_err(setup)?;
             let pack = SimPack::new(
                 spec.capacity_mah,
                 spec.cell_count,
                 spec.internal_resistance_ohm,
             )
-            .map_err(|e| setup(&e))?;
+            .map_err(setup)?;
             let hover_power_w = hover_power_w(model)
                 .ok_or_else(|| ServeError::Setup("[flight] gives no hover_power_w".into()))?;
             let rotors = RotorPowerModel::iris(hover_power_w);
-            rotors.validate().map_err(|e| setup(&e))?;
+            rotors.validate().map_err(setup)?;
             Flyer::Simulated {
                 vehicle: Box::new({
                     let vehicle = Multirotor::on_ground(VehicleParams::default(), Vector3::zeros())
-                        .map_err(|e| setup(&e))?;
+                        .map_err(setup)?;
                     match gimbal {
                         Some(gimbal) => vehicle.with_gimbal(gimbal),
                         None => vehicle,
@@ -262,7 +261,7 @@ pub fn serve(
                         wind_config(options.wind_speed_m_s, options.wind_kind),
                         options.seed ^ 0x5749_4e44,
                     )
-                    .map_err(|e| setup(&e))?,
+                    .map_err(setup)?,
                 ),
                 battery: SimBattery::new(pack),
                 rotors,
@@ -347,9 +346,7 @@ pub fn serve(
         tractor_moving |= above_since_s.is_some_and(|since_s| time_s - since_s >= MEET_DWELL_S);
 
         if camera.is_due(time_s) {
-            scene
-                .set_pad_pose(pad_pose(&tractor))
-                .map_err(|e| setup(&e))?;
+            scene.set_pad_pose(pad_pose(&tractor)).map_err(setup)?;
             match camera.capture_frame(time_s, &pose, &scene) {
                 Ok(frame) => {
                     frames_rendered += 1;
@@ -366,7 +363,7 @@ pub fn serve(
         for substep in 0..(TICK_S / PHYSICS_DT_S).round() as usize {
             let t_s = time_s + substep as f64 * PHYSICS_DT_S;
             if tractor_moving {
-                tractor.step(PHYSICS_DT_S).map_err(|e| setup(&e))?;
+                tractor.step(PHYSICS_DT_S).map_err(setup)?;
             }
             if let Flyer::Simulated {
                 vehicle,
@@ -384,7 +381,7 @@ pub fn serve(
                 let force = wind.force_ned_n(t_s, -position.z, vehicle.velocity_ned_m_s());
                 vehicle
                     .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
-                    .map_err(|e| setup(&e))?;
+                    .map_err(setup)?;
             }
         }
         let touchdown = match &mut flyer {
@@ -397,9 +394,7 @@ pub fn serve(
             } => {
                 let flight_w = flight_power_w(vehicle, wind, rotors, time_s);
                 // The companion computer's draw is the runtime's to report, not the world's.
-                battery
-                    .drain(flight_w, 0.0, TICK_S)
-                    .map_err(|e| setup(&e))?;
+                battery.drain(flight_w, 0.0, TICK_S).map_err(setup)?;
                 vehicle.touchdown().map(|t| ServedTouchdown {
                     time_s: t.time_s,
                     on_pad: t.on_pad,
@@ -561,3 +556,8 @@ fn video_stats(_video: &Video) -> (u64, Option<[f64; 2]>) {
 
 #[cfg(test)]
 mod tests;
+
+/// A setup failure, keeping its cause.
+fn setup(error: impl Into<crate::mission::Cause>) -> ServeError {
+    ServeError::Setup(error.into())
+}

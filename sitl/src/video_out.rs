@@ -18,7 +18,7 @@ use gstreamer_app as gst_app;
 #[derive(Debug, thiserror::Error)]
 pub enum VideoError {
     #[error("video stream: GStreamer: {0}")]
-    Gstreamer(String),
+    Gstreamer(#[source] Box<dyn std::error::Error + Send + Sync>),
     #[error(
         "video stream: frame {width}×{height}, the stream's is {stream_width}×{stream_height}"
     )]
@@ -29,7 +29,9 @@ pub enum VideoError {
         stream_height: usize,
     },
     #[error("video stream: the pipeline failed: {0}")]
-    Pipeline(String),
+    Pipeline(#[source] gst::glib::Error),
+    #[error("video stream: the pipeline failed: {0:?}")]
+    Flow(#[source] gst::FlowError),
 }
 
 /// Where and how the stream goes.
@@ -75,8 +77,7 @@ pub struct RtpH264Sender {
 
 impl RtpH264Sender {
     pub fn open(config: VideoStreamConfig) -> Result<Self, VideoError> {
-        let gst_error = |e: &dyn std::fmt::Display| VideoError::Gstreamer(e.to_string());
-        gst::init().map_err(|e| gst_error(&e))?;
+        gst::init().map_err(gst_error)?;
         let fps = config.rate_fps.round().max(1.0) as u32;
         let description = format!(
             "appsrc name=frames is-live=true format=time \
@@ -92,7 +93,7 @@ impl RtpH264Sender {
             port = config.port,
         );
         let pipeline = gst::parse::launch(&description)
-            .map_err(|e| gst_error(&e))?
+            .map_err(gst_error)?
             .downcast::<gst::Pipeline>()
             .map_err(|_| VideoError::Gstreamer("not a pipeline".into()))?;
         let source = pipeline
@@ -147,9 +148,7 @@ impl RtpH264Sender {
         let bus = pipeline
             .bus()
             .ok_or_else(|| VideoError::Gstreamer("no bus".into()))?;
-        pipeline
-            .set_state(gst::State::Playing)
-            .map_err(|e| gst_error(&e))?;
+        pipeline.set_state(gst::State::Playing).map_err(gst_error)?;
         Ok(Self {
             pipeline,
             source,
@@ -164,7 +163,7 @@ impl RtpH264Sender {
     pub fn send(&mut self, image: &GrayImage, age: Duration) -> Result<(), VideoError> {
         while let Some(message) = self.bus.pop() {
             if let gst::MessageView::Error(error) = message.view() {
-                return Err(VideoError::Pipeline(error.error().to_string()));
+                return Err(VideoError::Pipeline(error.error()));
             }
         }
         let (width, height) = (image.width(), image.height());
@@ -201,9 +200,7 @@ impl RtpH264Sender {
                 (1e9 / self.config.rate_fps.max(1.0)) as u64,
             ));
         }
-        self.source
-            .push_buffer(buffer)
-            .map_err(|e| VideoError::Pipeline(format!("{e:?}")))?;
+        self.source.push_buffer(buffer).map_err(VideoError::Flow)?;
         self.sent += 1;
         Ok(())
     }
@@ -234,4 +231,9 @@ impl Drop for RtpH264Sender {
         let _ = self.source.end_of_stream();
         let _ = self.pipeline.set_state(gst::State::Null);
     }
+}
+
+/// A GStreamer call's failure, keeping its error.
+fn gst_error(error: impl std::error::Error + Send + Sync + 'static) -> VideoError {
+    VideoError::Gstreamer(Box::new(error))
 }

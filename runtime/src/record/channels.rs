@@ -9,7 +9,7 @@
 
 use crate::link::Incoming;
 use crate::topics::{HazardReport, MarkerObservation, VehicleState};
-use algorithms::vision::image::{DepthImage, GrayImage};
+use algorithms::vision::image::{DepthImage, FrameError, GrayImage};
 use foxglove::messages as fg;
 use mavlink::dialects::common::MavMessage;
 use mavlink::{MavHeader, Message as _};
@@ -233,17 +233,16 @@ impl MavlinkBatch {
     }
 
     /// The batch as the link received it; a frame that does not decode is named.
-    pub fn to_incoming(&self) -> Result<Incoming, String> {
+    pub fn to_incoming(&self) -> Result<Incoming, ChannelError> {
         let mut messages = Vec::with_capacity(self.frames.len());
         for (index, frame) in self.frames.iter().enumerate() {
-            let bytes = hex::decode(frame).map_err(|e| format!("frame {index}: {e}"))?;
+            let bytes = hex::decode(frame).map_err(|source| ChannelError::Hex { index, source })?;
             let decoded = crate::link::connection::decode_datagram(&bytes);
-            let [message] = <[_; 1]>::try_from(decoded).map_err(|decoded| {
-                format!(
-                    "frame {index}: expected one MAVLink message, found {}",
-                    decoded.len()
-                )
-            })?;
+            let [message] =
+                <[_; 1]>::try_from(decoded).map_err(|decoded| ChannelError::MessageCount {
+                    index,
+                    found: decoded.len(),
+                })?;
             messages.push(message);
         }
         Ok(Incoming {
@@ -305,31 +304,63 @@ pub fn depth_image(image: &DepthImage, capture_ns: u64) -> Vec<u8> {
     .encode_to_vec()
 }
 
+/// Why a recorded message does not decode.
+#[derive(Debug, thiserror::Error)]
+pub enum ChannelError {
+    #[error("frame {index}: {source}")]
+    Hex {
+        index: usize,
+        #[source]
+        source: hex::FromHexError,
+    },
+    #[error("frame {index}: expected one MAVLink message, found {found}")]
+    MessageCount { index: usize, found: usize },
+    #[error("not a foxglove.RawImage: {0}")]
+    NotRawImage(#[source] prost::DecodeError),
+    #[error(
+        "expected a packed {expected} image, found {found} with step {step} for width {width}"
+    )]
+    ImageLayout {
+        expected: &'static str,
+        found: String,
+        step: u32,
+        width: u32,
+    },
+    #[error(transparent)]
+    Image(#[from] FrameError),
+}
+
 /// A decoded `foxglove.RawImage`.
-fn raw_image(bytes: &[u8], encoding: &str, bytes_per_pixel: u32) -> Result<fg::RawImage, String> {
-    let image = fg::RawImage::decode(bytes).map_err(|e| format!("not a foxglove.RawImage: {e}"))?;
+fn raw_image(
+    bytes: &[u8],
+    encoding: &'static str,
+    bytes_per_pixel: u32,
+) -> Result<fg::RawImage, ChannelError> {
+    let image = fg::RawImage::decode(bytes).map_err(ChannelError::NotRawImage)?;
     if image.encoding != encoding || image.step != bytes_per_pixel * image.width {
-        return Err(format!(
-            "expected a packed {encoding} image, found {} with step {} for width {}",
-            image.encoding, image.step, image.width
-        ));
+        return Err(ChannelError::ImageLayout {
+            expected: encoding,
+            found: image.encoding,
+            step: image.step,
+            width: image.width,
+        });
     }
     Ok(image)
 }
 
 /// The grayscale frame a `foxglove.RawImage` holds.
-pub fn decode_gray_image(bytes: &[u8]) -> Result<GrayImage, String> {
+pub fn decode_gray_image(bytes: &[u8]) -> Result<GrayImage, ChannelError> {
     let image = raw_image(bytes, "mono8", 1)?;
     GrayImage::from_vec(
         image.width as usize,
         image.height as usize,
         image.data.to_vec(),
     )
-    .map_err(|e| e.to_string())
+    .map_err(ChannelError::Image)
 }
 
 /// The depth frame a `foxglove.RawImage` holds.
-pub fn decode_depth_image(bytes: &[u8]) -> Result<DepthImage, String> {
+pub fn decode_depth_image(bytes: &[u8]) -> Result<DepthImage, ChannelError> {
     let image = raw_image(bytes, "32FC1", 4)?;
     let depth_m = image
         .data
@@ -337,7 +368,7 @@ pub fn decode_depth_image(bytes: &[u8]) -> Result<DepthImage, String> {
         .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
         .collect();
     DepthImage::from_vec(image.width as usize, image.height as usize, depth_m)
-        .map_err(|e| e.to_string())
+        .map_err(ChannelError::Image)
 }
 
 /// A mission event as `foxglove.Log`.
@@ -541,7 +572,7 @@ mod tests {
             unsigned: 0,
         };
         let error = batch.to_incoming().unwrap_err();
-        assert!(error.starts_with("frame 0:"), "{error}");
+        assert!(error.to_string().starts_with("frame 0:"), "{error}");
     }
 
     #[test]

@@ -23,17 +23,27 @@ use serde::Serialize;
 use std::collections::BTreeSet;
 use std::sync::Arc;
 
+/// Why a recorded message is unreadable.
+#[derive(Debug, thiserror::Error)]
+pub enum BadMessage {
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    #[error(transparent)]
+    Channel(#[from] ch::ChannelError),
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
     #[error(transparent)]
     Record(#[from] RecordError),
     #[error("cannot set up the replay: {0}")]
     Setup(#[source] RunnerError),
-    #[error("the recording's {topic} message at t = {time_s:.3} s is unreadable: {why}")]
+    #[error("the recording's {topic} message at t = {time_s:.3} s is unreadable: {source}")]
     BadMessage {
         topic: &'static str,
         time_s: f64,
-        why: String,
+        #[source]
+        source: BadMessage,
     },
 }
 
@@ -147,10 +157,10 @@ pub fn replay(
     runner.record(recorder).map_err(ReplayError::Setup)?;
 
     let bad =
-        |topic: &'static str, message: &RecordedMessage, why: String| ReplayError::BadMessage {
+        |topic: &'static str, message: &RecordedMessage, why: BadMessage| ReplayError::BadMessage {
             topic,
             time_s: message.log_time_ns as f64 * 1e-9,
-            why,
+            source: why,
         };
     let steps_recorded = recording.topic(ch::STEP.topic).count();
     let mut steps_replayed = 0;
@@ -160,15 +170,15 @@ pub fn replay(
         match message.topic.as_str() {
             t if t == ch::MAVLINK_IN.topic => {
                 let batch: MavlinkBatch = serde_json::from_slice(&message.data)
-                    .map_err(|e| bad(ch::MAVLINK_IN.topic, message, e.to_string()))?;
+                    .map_err(|e| bad(ch::MAVLINK_IN.topic, message, e.into()))?;
                 let incoming = batch
                     .to_incoming()
-                    .map_err(|why| bad(ch::MAVLINK_IN.topic, message, why))?;
+                    .map_err(|why| bad(ch::MAVLINK_IN.topic, message, why.into()))?;
                 feed.push(incoming);
             }
             t if t == ch::CAMERA_IMAGE.topic => {
                 let image = ch::decode_gray_image(&message.data)
-                    .map_err(|why| bad(ch::CAMERA_IMAGE.topic, message, why))?;
+                    .map_err(|why| bad(ch::CAMERA_IMAGE.topic, message, why.into()))?;
                 frames.push(CapturedFrame {
                     frame: CameraFrame {
                         frame_index: u64::from(message.sequence),
@@ -180,7 +190,7 @@ pub fn replay(
             }
             t if t == ch::CAMERA_DEPTH.topic => {
                 let image = ch::decode_depth_image(&message.data)
-                    .map_err(|why| bad(ch::CAMERA_DEPTH.topic, message, why))?;
+                    .map_err(|why| bad(ch::CAMERA_DEPTH.topic, message, why.into()))?;
                 depth_frames.publish(
                     Timestamp::from_nanos(message.log_time_ns),
                     DepthFrame {
@@ -191,7 +201,7 @@ pub fn replay(
             }
             t if t == ch::STEP.topic => {
                 let step: StepRecord = serde_json::from_slice(&message.data)
-                    .map_err(|e| bad(ch::STEP.topic, message, e.to_string()))?;
+                    .map_err(|e| bad(ch::STEP.topic, message, e.into()))?;
                 if let Err(error) = runner.step(step.now_s, step.lockstep_ns) {
                     stopped = Some(format!("at t = {:.3} s: {error}", step.now_s));
                     break;

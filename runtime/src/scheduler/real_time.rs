@@ -132,7 +132,7 @@ impl RealTimeScheduler {
                 return Err(SchedulerError::Stopped);
             }
         };
-        let (report_tx, report_rx) = mpsc::channel::<(usize, Result<(), String>)>();
+        let (report_tx, report_rx) = mpsc::channel::<(usize, Result<(), PinError>)>();
         let mut commands = Vec::with_capacity(runners.len());
         for (index, runner) in runners.into_iter().enumerate() {
             let (command_tx, command_rx) = mpsc::channel();
@@ -177,7 +177,7 @@ impl RealTimeScheduler {
             return Err(SchedulerError::Pinning {
                 task: task.name.clone(),
                 cores: task.cores.clone(),
-                reason,
+                source: reason,
             });
         }
         // Round 2: every task starts (a failing start is the task's failure, not the scheduler's).
@@ -337,13 +337,28 @@ impl Drop for RealTimeScheduler {
     }
 }
 
+/// Why a worker could not be pinned to its cores.
+#[derive(Debug, thiserror::Error)]
+pub enum PinError {
+    #[error("core {core} is beyond the {max} cores the OS can address")]
+    BeyondAddressable { core: usize, max: usize },
+    #[error("{0} (does this machine have these cores?)")]
+    SetAffinity(#[source] std::io::Error),
+    #[error("{0}")]
+    GetAffinity(#[source] std::io::Error),
+    #[error("cores {missing:?} are not available on this machine")]
+    Missing { missing: Vec<usize> },
+    #[error("pinning is only supported on Linux")]
+    Unsupported,
+}
+
 fn worker_main(
     index: usize,
     mut runner: TaskRunner,
     shared: Arc<WorkerShared>,
     clock: WallClock,
     options: RealTimeOptions,
-    report: Sender<(usize, Result<(), String>)>,
+    report: Sender<(usize, Result<(), PinError>)>,
     commands: Receiver<Command>,
 ) {
     if options.fine_timer_slack {
@@ -359,9 +374,7 @@ fn worker_main(
             }
             Ok(())
         }
-        Pinning::Required => {
-            os::pin_current_thread(&cores).map_err(|reason| format!("cores {cores:?}: {reason}"))
-        }
+        Pinning::Required => os::pin_current_thread(&cores),
     };
     let _ = report.send((index, pinned));
     if !matches!(commands.recv(), Ok(Command::Start)) {
@@ -424,6 +437,8 @@ fn worker_main(
 
 #[cfg(target_os = "linux")]
 mod os {
+    use super::PinError;
+
     /// Timer slack lets the kernel coalesce wake-ups up to 50 µs late by default; a periodic
     /// task wants its wake-up on time.
     pub fn set_fine_timer_slack() {
@@ -436,12 +451,10 @@ mod os {
     }
 
     /// Pins the calling thread to `cores`; an error names the cores this machine lacks.
-    pub fn pin_current_thread(cores: &[usize]) -> Result<(), String> {
+    pub fn pin_current_thread(cores: &[usize]) -> Result<(), PinError> {
         let max = libc::CPU_SETSIZE as usize;
-        if let Some(core) = cores.iter().find(|&&core| core >= max) {
-            return Err(format!(
-                "core {core} is beyond the {max} cores the OS can address"
-            ));
+        if let Some(&core) = cores.iter().find(|&&core| core >= max) {
+            return Err(PinError::BeyondAddressable { core, max });
         }
         // SAFETY: cpu_set_t is a plain bit array for which all-zero is the empty set; the CPU_*
         // helpers index within it (cores were checked against CPU_SETSIZE above), and the
@@ -454,15 +467,12 @@ mod os {
             }
             let size = std::mem::size_of::<libc::cpu_set_t>();
             if libc::sched_setaffinity(0, size, &wanted) != 0 {
-                return Err(format!(
-                    "{} (does this machine have these cores?)",
-                    std::io::Error::last_os_error()
-                ));
+                return Err(PinError::SetAffinity(std::io::Error::last_os_error()));
             }
             // The kernel accepts a set of which only some cores exist: check what we got.
             let mut got: libc::cpu_set_t = std::mem::zeroed();
             if libc::sched_getaffinity(0, size, &mut got) != 0 {
-                return Err(std::io::Error::last_os_error().to_string());
+                return Err(PinError::GetAffinity(std::io::Error::last_os_error()));
             }
             let missing: Vec<usize> = cores
                 .iter()
@@ -470,9 +480,7 @@ mod os {
                 .filter(|&core| !libc::CPU_ISSET(core, &got))
                 .collect();
             if !missing.is_empty() {
-                return Err(format!(
-                    "cores {missing:?} are not available on this machine"
-                ));
+                return Err(PinError::Missing { missing });
             }
         }
         Ok(())
@@ -483,7 +491,7 @@ mod os {
 mod os {
     pub fn set_fine_timer_slack() {}
 
-    pub fn pin_current_thread(_cores: &[usize]) -> Result<(), String> {
-        Err("pinning is only supported on Linux".to_string())
+    pub fn pin_current_thread(_cores: &[usize]) -> Result<(), super::PinError> {
+        Err(super::PinError::Unsupported)
     }
 }

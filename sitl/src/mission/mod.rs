@@ -43,151 +43,11 @@ use sim::vehicle::{Multirotor, VehicleParams};
 use sim::wind::{Wind, WindConfig};
 use std::time::Instant;
 
-/// One lockstep tick.
-pub const TICK_S: f64 = 0.02;
-/// The physics step inside a tick.
-pub const PHYSICS_DT_S: f64 = 0.005;
+mod options;
+mod world;
 
-/// The wind model to fly in.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum WindKind {
-    /// The seed's gust model.
-    #[default]
-    Gusts,
-    /// Dryden turbulence around the mean wind.
-    Dryden,
-}
-
-/// Faults to inject, as (from, until) in simulated seconds after the tracking phase began.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Faults {
-    /// The MAVLink link drops everything both ways.
-    pub link_loss: Option<(f64, f64)>,
-    /// The camera keeps delivering its last frame.
-    pub camera_freeze: Option<(f64, f64)>,
-    /// The camera delivers nothing (a stalled pipeline, an unplugged camera).
-    pub camera_stall: Option<(f64, f64)>,
-}
-
-/// What to fly.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SimOptions {
-    pub path: PathKind,
-    pub wind_speed_m_s: f64,
-    pub wind_kind: WindKind,
-    pub platform_speed_m_s: f64,
-    pub seed: u64,
-    /// Overrides the duration of the middle phases (the tracking), e.g. to evaluate landings.
-    pub tracking_s: Option<f64>,
-    /// Tasks held at the level whose knob value is given (the governor leaves them alone).
-    pub fixed_levels: Vec<(String, f64)>,
-    /// The simulation gives up after this much simulated time; `None`: the configured
-    /// mission's length (tracking override included) plus [`TIME_MARGIN_S`].
-    pub max_time_s: Option<f64>,
-    pub faults: Faults,
-    /// Keep a 1 Hz track of vehicle, tractor and battery for plotting.
-    pub record_track: bool,
-    /// The downward stereo depth camera; it flies only when a task reads depth frames.
-    pub stereo: StereoCameraConfig,
-    /// Fly on the wall clock: the tasks on the real-time scheduler's threads, the autopilot
-    /// streaming as a real one does (no lockstep), the world stepped at the pace of real time.
-    /// Not deterministic; this is how the onboard path is flown end to end in one process.
-    pub real_time: bool,
-    /// How far what the runtime sees is from the truth ([`Realism::ideal`]: not at all).
-    pub realism: Realism,
-    /// Threads a camera frame is rendered on; 0: one per core.
-    pub render_threads: usize,
-    /// Record the mission to MCAP and/or serve it live to Foxglove.
-    pub record: Option<SimRecording>,
-    /// Told how far the mission is, once a simulated second.
-    pub progress: Option<ProgressSink>,
-}
-
-/// How far a flying mission is.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SimProgress {
-    pub time_s: f64,
-    /// Where the simulation gives up: the mission's length with a margin.
-    pub max_time_s: f64,
-    /// The phase in flight (index into the config's phases) and its name; `None` before the
-    /// first starts.
-    pub phase: Option<(usize, String)>,
-    pub phase_count: usize,
-    /// Wall time since the mission started flying.
-    pub wall_s: f64,
-}
-
-/// What a mission reports its progress to (the CLI's progress line).
-#[derive(Clone)]
-pub struct ProgressSink(pub std::sync::Arc<dyn Fn(&SimProgress) + Send + Sync>);
-
-impl std::fmt::Debug for ProgressSink {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("ProgressSink")
-    }
-}
-
-impl PartialEq for ProgressSink {
-    fn eq(&self, other: &Self) -> bool {
-        std::sync::Arc::ptr_eq(&self.0, &other.0)
-    }
-}
-
-/// Where a simulated mission is recorded, and the config files it flies (the recording keeps
-/// them, so a replay needs nothing else).
-#[derive(Debug, Clone, PartialEq)]
-pub struct SimRecording {
-    pub recorder: RecorderOptions,
-    pub config_files: Vec<ConfigFile>,
-}
-
-impl Default for SimOptions {
-    fn default() -> Self {
-        Self {
-            path: PathKind::Straight,
-            wind_speed_m_s: 0.0,
-            wind_kind: WindKind::Gusts,
-            platform_speed_m_s: 1.5,
-            seed: 0,
-            tracking_s: None,
-            fixed_levels: Vec::new(),
-            max_time_s: None,
-            faults: Faults::default(),
-            record_track: false,
-            stereo: StereoCameraConfig::default(),
-            real_time: false,
-            realism: Realism::default(),
-            render_threads: 0,
-            record: None,
-            progress: None,
-        }
-    }
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum SimError {
-    #[error("simulation setup: {0}")]
-    Setup(String),
-    #[error("scheduler: {0}")]
-    Scheduler(#[from] runtime::scheduler::SchedulerError),
-    #[error("MAVLink: {0}")]
-    Link(String),
-    #[error(transparent)]
-    Record(#[from] RecordError),
-    #[error("--fix {task}={value}: {why}")]
-    FixedLevel {
-        task: String,
-        value: f64,
-        why: String,
-    },
-}
-
-/// Time allowed beyond the configured mission before the simulation gives up: take-off,
-/// transit and a few landing attempts.
-pub const TIME_MARGIN_S: f64 = 120.0;
-
-/// Where the tractor waits for the vehicle, north of the take-off point.
-const MEETING_POINT_NORTH_M: f64 = 15.0;
+pub use options::*;
+pub use world::*;
 
 /// Flies one mission.
 pub fn simulate(
@@ -208,7 +68,6 @@ pub fn simulate(
     }
     let model = &adjusted;
     let config = &model.config;
-    let setup = |e: &dyn std::fmt::Display| SimError::Setup(e.to_string());
 
     // The runtime: every configured task whose plugin this build has.
     let mut skipped_tasks = Vec::new();
@@ -241,9 +100,9 @@ pub fn simulate(
         ..TractorParams::default()
     };
     let realism = &options.realism;
-    realism.validate().map_err(|e| setup(&e))?;
+    realism.validate().map_err(setup)?;
     let mut tractor = Tractor::new(options.path, tractor_params, meeting, 0.0)
-        .map_err(|e| setup(&e))?
+        .map_err(setup)?
         .parked();
     if realism.driver != DriverBehaviour::SCRIPTED {
         tractor = tractor.with_driver(realism.driver, options.seed);
@@ -252,15 +111,15 @@ pub fn simulate(
         tractor = tractor.with_rough_field(realism.pad, options.seed);
     }
     let mut vehicle =
-        Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(|e| setup(&e))?;
-    if let Some(gimbal) = camera_gimbal(model).map_err(|e| setup(&e))? {
+        Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(setup)?;
+    if let Some(gimbal) = camera_gimbal(model).map_err(setup)? {
         vehicle = vehicle.with_gimbal(gimbal);
     }
     let mut wind = Wind::new(
         wind_config(options.wind_speed_m_s, options.wind_kind),
         options.seed ^ 0x5749_4e44,
     )
-    .map_err(|e| setup(&e))?;
+    .map_err(setup)?;
     let camera_config = SimCameraConfig {
         exposure_ms: realism.camera.exposure_ms,
         render_threads: options.render_threads,
@@ -273,45 +132,43 @@ pub fn simulate(
     let mut in_transit: std::collections::VecDeque<(f64, f64, PendingFrame)> =
         std::collections::VecDeque::new();
     let mut latency_rng = SplitMix64::new(options.seed ^ 0x006c_6174_656e_6379);
-    let mut camera = SimCamera::new(camera_config, options.seed).map_err(|e| setup(&e))?;
+    let mut camera = SimCamera::new(camera_config, options.seed).map_err(setup)?;
     // The hazards stand beside the track the tractor will drive while the CNN watches.
     let watch_s: f64 = model.config.mission.phases[1..model.config.mission.phases.len() - 1]
         .iter()
         .map(|p| p.duration_s)
         .sum();
-    let track = future_track_ne_m(&tractor, watch_s).map_err(|e| setup(&e))?;
-    let hazards = HazardField::along_track(options.seed, &track, &track_scatter(&track))
-        .map_err(|e| setup(&e))?;
+    let track = future_track_ne_m(&tractor, watch_s).map_err(setup)?;
+    let hazards =
+        HazardField::along_track(options.seed, &track, &track_scatter(&track)).map_err(setup)?;
     let hazards_total = hazards.hazards.len();
     let mut scene = SimScene::new(options.seed)
         .with_tractor_body(TractorBody::default())
-        .map_err(|e| setup(&e))?
+        .map_err(setup)?
         .with_hazards(hazards)
         .with_pad_occluders(pad_occluders(&realism.camera, options.seed));
     // The world's pack has the config's capacity, cells and resistance.
-    let spec = model.battery_spec(None).map_err(|e| setup(&e))?;
+    let spec = model.battery_spec(None).map_err(setup)?;
     let pack = SimPack::new(
         spec.capacity_mah,
         spec.cell_count,
         spec.internal_resistance_ohm,
     )
-    .map_err(|e| setup(&e))?;
+    .map_err(setup)?;
     let mut battery = SimBattery::new(pack);
     let hover_power_w = hover_power_w(model)
         .ok_or_else(|| SimError::Setup("[flight] gives no hover_power_w".into()))?;
     let rotors = RotorPowerModel::iris(hover_power_w);
-    rotors.validate().map_err(|e| setup(&e))?;
+    rotors.validate().map_err(setup)?;
 
     // MAVLink over the loopback, as with PX4 SITL: the autopilot sends to the runtime's port.
-    let link_error = |e: &dyn std::fmt::Display| SimError::Link(e.to_string());
-    let link =
-        MavlinkLink::bind_local_ephemeral(LinkConfig::default()).map_err(|e| link_error(&e))?;
+    let link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).map_err(link_error)?;
     let runtime_addr = link
         .local_addr()
         .ok_or_else(|| SimError::Link("the link has no local UDP address".into()))?;
     let telemetry = &realism.telemetry;
     let mut autopilot = MavlinkAutopilot::bind_local(runtime_addr, !options.real_time)
-        .map_err(|e| link_error(&e))?
+        .map_err(link_error)?
         .with_stream_rates(StreamRates {
             attitude_hz: telemetry.attitude_rate_hz,
             position_hz: telemetry.position_rate_hz,
@@ -356,7 +213,7 @@ pub fn simulate(
     )
     .map_err(|error| match error {
         RunnerError::FixedLevel { task, value, why } => SimError::FixedLevel { task, value, why },
-        other => SimError::Setup(other.to_string()),
+        other => SimError::Setup(other.into()),
     })?;
     if let Some(record) = &options.record {
         let mut header = RecordingHeader::new(
@@ -376,7 +233,7 @@ pub fn simulate(
         if let Some(port) = recorder.live_port() {
             events.push((0.0, format!("serving Foxglove's WebSocket on port {port}")));
         }
-        runner.record(recorder).map_err(|e| setup(&e))?;
+        runner.record(recorder).map_err(setup)?;
     }
     // The tasks that look at camera frames: a frame is rendered only when one will.
     let camera_consumers: Vec<String> = config
@@ -392,26 +249,22 @@ pub fn simulate(
         .iter()
         .any(|t| DEPTH_PLUGINS.contains(&t.plugin.as_str()) && registry.contains(&t.plugin));
     let mut stereo = if reads_depth {
-        let camera = SimStereoCamera::new(options.stereo, options.seed).map_err(|e| setup(&e))?;
-        let publisher = bus
-            .publisher::<DepthFrame>(DEPTH_FRAME)
-            .map_err(|e| setup(&e))?;
+        let camera = SimStereoCamera::new(options.stereo, options.seed).map_err(setup)?;
+        let publisher = bus.publisher::<DepthFrame>(DEPTH_FRAME).map_err(setup)?;
         Some((camera, publisher))
     } else {
         None
     };
     let mut relative_states = bus
         .subscriber::<RelativeState>(RELATIVE_STATE)
-        .map_err(|e| setup(&e))?;
+        .map_err(setup)?;
     let mut localisation = LocalisationAccumulator::default();
     let hazard_task = config
         .tasks
         .iter()
         .find(|t| t.plugin == "hazard_cnn" && registry.contains(&t.plugin))
         .map(|t| t.name.clone());
-    let mut hazard_reports = bus
-        .subscriber::<HazardReport>(HAZARDS)
-        .map_err(|e| setup(&e))?;
+    let mut hazard_reports = bus.subscriber::<HazardReport>(HAZARDS).map_err(setup)?;
     let mut hazard_score = HazardScore::default();
     let mut hazard_backend: Option<&'static str> = None;
 
@@ -475,9 +328,7 @@ pub fn simulate(
                         })
                 });
             if wanted {
-                scene
-                    .set_pad_pose(pad_pose(&tractor))
-                    .map_err(|e| setup(&e))?;
+                scene.set_pad_pose(pad_pose(&tractor)).map_err(setup)?;
                 let pose = vehicle.camera_pose();
                 // Rendered on other threads during the frame's latency; the loop goes on.
                 match camera.capture_deferred(time_s, &pose, &scene) {
@@ -539,25 +390,23 @@ pub fn simulate(
 
         // Autopilot → runtime → autopilot: in lockstep, or as the datagrams come.
         let snapshot = estimate.report(&vehicle.snapshot(time_s, battery.reading()));
-        let t_ns = autopilot.publish(&snapshot).map_err(|e| link_error(&e))?;
+        let t_ns = autopilot.publish(&snapshot).map_err(link_error)?;
         let lockstep = (!options.real_time).then_some(t_ns);
         let step = runner
             .step(runtime_now_s, lockstep)
             .map_err(|error| match error {
                 RunnerError::Scheduler(error) => SimError::Scheduler(error),
-                other => SimError::Link(other.to_string()),
+                other => SimError::Link(other.into()),
             })?;
         let received = match lockstep {
             Some(t_ns) => autopilot.receive_lockstep(t_ns, LOCKSTEP_TIMEOUT),
             None => autopilot.receive(),
         }
-        .map_err(|e| link_error(&e))?;
+        .map_err(link_error)?;
         for received in received {
             let result = vehicle.command(received.command, time_s);
             if let Some(pending) = received.ack {
-                autopilot
-                    .ack(pending, &result)
-                    .map_err(|e| link_error(&e))?;
+                autopilot.ack(pending, &result).map_err(link_error)?;
             }
         }
 
@@ -636,13 +485,13 @@ pub fn simulate(
         for substep in 0..substeps {
             let t_s = time_s + substep as f64 * PHYSICS_DT_S;
             if tractor_moving {
-                tractor.step(PHYSICS_DT_S).map_err(|e| setup(&e))?;
+                tractor.step(PHYSICS_DT_S).map_err(setup)?;
             }
             let position = vehicle.position_ned_m();
             let force = wind.force_ned_n(t_s, -position.z, vehicle.velocity_ned_m_s());
             vehicle
                 .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
-                .map_err(|e| setup(&e))?;
+                .map_err(setup)?;
         }
         let flight_w = flight_power_w(&vehicle, &mut wind, &rotors, time_s);
         // The companion draws what the tasks of the phase in flight cost at their levels.
@@ -767,173 +616,4 @@ pub fn simulate(
         loop_step_p50_us: loop_step.p50_us,
         loop_step_p99_us: loop_step.p99_us,
     })
-}
-
-/// The rotors' hover power: the config's, or without one the first phase's flight power.
-pub(crate) fn hover_power_w(model: &MissionModel) -> Option<f64> {
-    let config = &model.config;
-    config.flight.hover_power_w.or_else(|| {
-        config
-            .mission
-            .phases
-            .iter()
-            .find_map(|p| config.flight.power_w(&p.name))
-    })
-}
-
-/// What the rotors draw now: by the vehicle's airspeed and climb rate while it flies. The wind
-/// is asked every tick, flying or not: its gusts advance with each query.
-pub(crate) fn flight_power_w(
-    vehicle: &Multirotor,
-    wind: &mut Wind,
-    rotors: &RotorPowerModel,
-    time_s: f64,
-) -> f64 {
-    let velocity = vehicle.velocity_ned_m_s();
-    let air = velocity - wind.wind_velocity_ned_m_s(time_s, -vehicle.position_ned_m().z);
-    if vehicle.is_flying() {
-        rotors.power_w(air.xy().norm(), -velocity.z)
-    } else {
-        0.0
-    }
-}
-
-/// The wind to fly in: from the east, as the seed's.
-pub(crate) fn wind_config(speed_m_s: f64, kind: WindKind) -> WindConfig {
-    match (speed_m_s > 0.0, kind) {
-        (false, _) => WindConfig::Calm,
-        (true, WindKind::Gusts) => WindConfig::Gusts {
-            speed_m_s,
-            direction_from_rad: std::f64::consts::FRAC_PI_2,
-        },
-        (true, WindKind::Dryden) => WindConfig::Dryden {
-            speed_m_s,
-            direction_from_rad: std::f64::consts::FRAC_PI_2,
-        },
-    }
-}
-
-/// The camera the tracker's params describe (field of view and image size: the
-/// `kalman_tracker`'s, else the `hybrid_tracking`'s), at 10 fps like the seed's.
-pub(crate) fn camera_config(model: &MissionModel) -> SimCameraConfig {
-    let mut config = SimCameraConfig::default();
-    let number = |key| {
-        let config = &model.config;
-        config
-            .plugin_number("kalman_tracker", key)
-            .or_else(|| config.plugin_number("hybrid_tracking", key))
-    };
-    if let Some(fov) = number("camera_horizontal_fov_deg") {
-        config.horizontal_fov_deg = fov;
-    }
-    if let Some(width) = number("image_width_px") {
-        config.width_px = width as usize;
-    }
-    if let Some(height) = number("image_height_px") {
-        config.height_px = height as usize;
-    }
-    config
-}
-
-/// The camera's gimbal, when the tracker's params put the camera on one
-/// (`camera_mount = "gimbal"`): the world then carries one and its autopilot reports it.
-pub(crate) fn camera_gimbal(model: &MissionModel) -> Result<Option<Gimbal>, GimbalError> {
-    let on_gimbal = model.config.tasks.iter().any(|task| {
-        matches!(task.plugin.as_str(), "kalman_tracker" | "hybrid_tracking")
-            && task.params.get("camera_mount").and_then(|v| v.as_str()) == Some("gimbal")
-    });
-    on_gimbal
-        .then(|| Gimbal::new(GimbalParams::default()))
-        .transpose()
-}
-
-/// The sequencer's plan from the config (its tracking time already the one to fly), with the
-/// simulated world's meeting point and pad height.
-fn mission_plan(model: &MissionModel, meeting: [f64; 2], pad_height_m: f64) -> MissionPlan {
-    let mut plan = MissionPlan::for_mission(&model.config);
-    plan.cruise_altitude_m += pad_height_m;
-    plan.meeting_point_ne_m = meeting;
-    plan
-}
-
-/// Plugins that read the camera topic.
-const CAMERA_PLUGINS: [&str; 3] = ["landing_marker", "hazard_cnn", "hybrid_tracking"];
-
-/// Plugins that read the depth topic: the stereo camera flies only for them.
-const DEPTH_PLUGINS: [&str; 1] = ["hybrid_tracking"];
-
-/// A relative state counts towards the localisation error when it is at most this old …
-const LOCALISATION_MAX_AGE_S: f64 = 0.1;
-/// … and its last vision fix at most this old (the tracker has the target, not a memory of it).
-const LOCALISATION_MAX_FIX_GAP_S: f64 = 1.0;
-
-/// Where the tractor will drive in the next `duration_s`: its track sampled every half second,
-/// from a copy driven ahead (the tractor is deterministic).
-fn future_track_ne_m(
-    tractor: &Tractor,
-    duration_s: f64,
-) -> Result<Vec<[f64; 2]>, sim::tractor::TractorError> {
-    const SAMPLE_S: f64 = 0.5;
-    let mut ahead = tractor.clone();
-    let mut track = vec![ahead.pose().position_ne_m.into()];
-    let samples = (duration_s.max(0.0) / SAMPLE_S).ceil() as usize;
-    for _ in 0..samples {
-        // The same step as the flight's physics, so the copy drives the same track.
-        for _ in 0..(SAMPLE_S / PHYSICS_DT_S).round() as usize {
-            ahead.step(PHYSICS_DT_S)?;
-        }
-        track.push(ahead.pose().position_ne_m.into());
-    }
-    Ok(track)
-}
-
-/// The seed's 32 hazards on a track of at least [`FULL_HAZARD_TRACK_M`]; proportionally fewer
-/// on a shorter one, so a short test flight is not crowded.
-fn track_scatter(track_ne_m: &[[f64; 2]]) -> TrackScatterConfig {
-    let full = TrackScatterConfig::default();
-    let length_m: f64 = track_ne_m
-        .windows(2)
-        .map(|p| (p[1][0] - p[0][0]).hypot(p[1][1] - p[0][1]))
-        .sum();
-    let usable = ((length_m - full.skip_start_m) / FULL_HAZARD_TRACK_M).clamp(0.0, 1.0);
-    TrackScatterConfig {
-        count_per_class: full
-            .count_per_class
-            .map(|count| (count as f64 * usable).floor() as usize),
-        ..full
-    }
-}
-
-/// Track length that holds the full set of hazards (one every ~9 m).
-pub const FULL_HAZARD_TRACK_M: f64 = 290.0;
-
-pub(crate) fn pad_pose(tractor: &Tractor) -> PadPose {
-    let pad = tractor.pad();
-    PadPose {
-        north_m: pad.centre_ned_m.x,
-        east_m: pad.centre_ned_m.y,
-        height_m: -pad.centre_ned_m.z,
-        yaw_rad: pad.yaw_rad,
-    }
-}
-
-/// What lies on the pad for this seed: with probability `occluded_fraction` one square of
-/// `occluder_size_m` somewhere over the marker, dark (mud, a shadow's edge) or light (straw).
-fn pad_occluders(camera: &CameraRealism, seed: u64) -> Vec<PadOccluder> {
-    let mut rng = SplitMix64::new(seed ^ 0x6f63_636c_7564_6572);
-    if camera.occluder_size_m <= 0.0 || rng.next_f64() >= camera.occluded_fraction {
-        return Vec::new();
-    }
-    let mut within = |half_m: f64| half_m * (2.0 * rng.next_f64() - 1.0);
-    let forward_m = within(0.35);
-    let right_m = within(0.35);
-    let yaw_rad = within(std::f64::consts::FRAC_PI_4);
-    let intensity = if rng.next_f64() < 0.5 { 0.2 } else { 0.85 };
-    vec![PadOccluder {
-        forward_m,
-        right_m,
-        yaw_rad,
-        size_m: camera.occluder_size_m,
-        intensity,
-    }]
 }
