@@ -285,7 +285,7 @@ pub fn simulate(
     loop {
         let time_s = tick as f64 * TICK_S;
         if let Some(progress) = &options.progress {
-            if tick % ticks_per_report == 0 {
+            if tick.is_multiple_of(ticks_per_report) {
                 (progress.0)(&SimProgress {
                     time_s,
                     max_time_s,
