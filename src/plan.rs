@@ -6,7 +6,7 @@ use crate::plot::{frontier_svg, FrontierPlot};
 use power_models::planner::{pareto_frontier, solve, PhasePlan, Plan};
 use runtime::catalog::PluginCatalog;
 use runtime::config::{load_file, Knob, MissionConfig};
-use runtime::energy::{energy_budget, load_mission_model, MissionModel};
+use runtime::energy::{energy_budget, load_mission_model, BudgetError, MissionModel};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -49,8 +49,8 @@ pub fn run(args: &PlanArgs) -> ExitCode {
     }
     let report = match plan_report(&model, args) {
         Ok(report) => report,
-        Err(message) => {
-            eprintln!("error: {message}");
+        Err(error) => {
+            eprintln!("error: {error}");
             return ExitCode::from(EXIT_INVALID_CONFIG);
         }
     };
@@ -127,30 +127,39 @@ pub struct FrontierPoint {
     pub utility: f64,
 }
 
-fn plan_report(model: &MissionModel, args: &PlanArgs) -> Result<PlanReport, String> {
+/// Why no plan report: a bad argument, or the planner's or the battery's error.
+#[derive(Debug, thiserror::Error)]
+enum PlanReportError {
+    #[error("--reserve must be a fraction within [0, 1), found {0}")]
+    Reserve(f64),
+    #[error("--battery-wh must be a positive energy, found {0}")]
+    BatteryWh(f64),
+    #[error(transparent)]
+    Budget(#[from] BudgetError),
+}
+
+fn plan_report(model: &MissionModel, args: &PlanArgs) -> Result<PlanReport, PlanReportError> {
     let config = &model.config;
     let reserve_fraction = args
         .reserve_fraction
         .unwrap_or(config.mission.reserve_fraction);
     if !(0.0..1.0).contains(&reserve_fraction) {
-        return Err(format!(
-            "--reserve must be a fraction within [0, 1), found {reserve_fraction}"
-        ));
+        return Err(PlanReportError::Reserve(reserve_fraction));
     }
     if let Some(wh) = args.battery_wh {
         if !(wh.is_finite() && wh > 0.0) {
-            return Err(format!(
-                "--battery-wh must be a positive energy, found {wh}"
-            ));
+            return Err(PlanReportError::BatteryWh(wh));
         }
     }
     let problem = model.plan_problem();
-    let frontier = pareto_frontier(&problem).map_err(|e| format!("cannot plan: {e}"))?;
-    let spec = model.battery_spec(args.battery_wh)?;
-    let budget = energy_budget(&problem, &spec, reserve_fraction).map_err(|e| e.to_string())?;
+    let frontier = pareto_frontier(&problem).map_err(BudgetError::Plan)?;
+    let spec = model
+        .battery_spec(args.battery_wh)
+        .map_err(BudgetError::Battery)?;
+    let budget = energy_budget(&problem, &spec, reserve_fraction)?;
     let usable_wh = budget.usable_wh;
     let available_wh = budget.available_wh;
-    let plan = solve(&problem, available_wh).map_err(|e| format!("cannot plan: {e}"))?;
+    let plan = solve(&problem, available_wh).map_err(BudgetError::Plan)?;
     Ok(report_of(
         model,
         &plan,

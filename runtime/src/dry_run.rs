@@ -12,12 +12,12 @@ use crate::mission::{MissionPlan, MissionRunner, RunnerError, RunnerOptions};
 use crate::registry::PluginRegistry;
 use crate::scheduler::{RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats};
 use crate::topics::{CameraFrame, VehicleState};
-use algorithms::camera::{CameraPose, PinholeCamera};
+use algorithms::camera::{CameraError, CameraPose, PinholeCamera};
 use algorithms::estimation::camera_mount;
 use algorithms::estimation::projection::Attitude;
 use algorithms::vision::image::GrayImage;
-use algorithms::vision::landing_marker::LandingMarkerLayout;
-use algorithms::vision::render::{render, RenderOptions, Scene, Texture};
+use algorithms::vision::landing_marker::{LandingMarkerError, LandingMarkerLayout};
+use algorithms::vision::render::{render, RenderError, RenderOptions, Scene, Texture};
 use mavlink::dialects::common::{
     GimbalDeviceFlags, MavAutopilot, MavLandedState, MavMessage, MavModeFlag, MavState, MavType,
     MavVtolState, ATTITUDE_DATA, BATTERY_STATUS_DATA, EXTENDED_SYS_STATE_DATA,
@@ -25,6 +25,7 @@ use mavlink::dialects::common::{
 };
 use mavlink::{MavHeader, MavlinkVersion};
 use nalgebra::Vector3;
+use power_models::battery::BatteryError;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -41,10 +42,16 @@ pub enum DryRunError {
     Link(#[from] LinkError),
     #[error("the synthetic vehicle's socket: {0}")]
     Vehicle(#[from] std::io::Error),
-    #[error("governor: {0}")]
-    Governor(String),
+    #[error("battery: {0}")]
+    Battery(#[source] BatteryError),
+    #[error("the link has no local address for the synthetic vehicle to send to")]
+    NoLinkAddress,
     #[error("synthetic camera: {0}")]
-    Camera(String),
+    Camera(#[source] CameraError),
+    #[error("synthetic camera: {0}")]
+    Pad(#[source] LandingMarkerError),
+    #[error("synthetic camera: {0}")]
+    Render(#[source] RenderError),
 }
 
 pub struct DryRunOptions {
@@ -95,15 +102,13 @@ pub fn dry_run(
     };
     let phase_name = config.mission.phases[phase_index].name.clone();
     let frames = synthetic_frames()?;
-    let pack = model.battery_spec(None).map_err(DryRunError::Governor)?;
+    let pack = model.battery_spec(None).map_err(DryRunError::Battery)?;
 
     let scheduler = SchedulerBuilder::new(registry)
         .tasks(&config.tasks)
         .build_real_time(RealTimeOptions::default())?;
     let link = MavlinkLink::bind_local_ephemeral(LinkConfig::default())?;
-    let runtime_addr = link
-        .local_addr()
-        .ok_or_else(|| DryRunError::Camera("the link has no local address".into()))?;
+    let runtime_addr = link.local_addr().ok_or(DryRunError::NoLinkAddress)?;
     let mut vehicle = SyntheticVehicle::new(runtime_addr)?;
     let camera = MemorySource::new();
     let mut plan = MissionPlan::for_mission(config);
@@ -275,7 +280,7 @@ impl SyntheticVehicle {
         self.sequence = self.sequence.wrapping_add(1);
         let mut bytes = Vec::with_capacity(64);
         mavlink::write_versioned_msg(&mut bytes, MavlinkVersion::V2, header, message)
-            .map_err(|e| std::io::Error::other(e.to_string()))?;
+            .map_err(std::io::Error::other)?;
         self.socket.send_to(&bytes, self.to).map(|_| ())
     }
 }
@@ -305,8 +310,8 @@ pub(crate) fn hovering_vehicle() -> VehicleState {
 /// A few frames of the reference pad drifting under a camera at 5 m, rendered once up front so
 /// the run measures the tasks, not the renderer.
 pub(crate) fn synthetic_frames() -> Result<Vec<Arc<GrayImage>>, DryRunError> {
-    let camera = PinholeCamera::from_fov(640, 480, 60f64.to_radians())
-        .map_err(|e| DryRunError::Camera(e.to_string()))?;
+    let camera =
+        PinholeCamera::from_fov(640, 480, 60f64.to_radians()).map_err(DryRunError::Camera)?;
     let [roll, pitch, yaw] = HOVER_ATTITUDE_RAD;
     let pose = CameraPose::downward(Vector3::new(0.0, 0.0, -HOVER_HEIGHT_M), roll, pitch, yaw);
     (0..5)
@@ -314,10 +319,10 @@ pub(crate) fn synthetic_frames() -> Result<Vec<Arc<GrayImage>>, DryRunError> {
             let mut scene = Scene::new(Texture::field(3));
             scene.patches = LandingMarkerLayout::default()
                 .patches(0.1 * index as f64, -0.3 + 0.15 * index as f64, 0.0, 0.4)
-                .map_err(|e| DryRunError::Camera(e.to_string()))?;
+                .map_err(DryRunError::Pad)?;
             render(&camera, &pose, &scene, &RenderOptions::default())
                 .map(Arc::new)
-                .map_err(|e| DryRunError::Camera(e.to_string()))
+                .map_err(DryRunError::Render)
         })
         .collect()
 }

@@ -347,8 +347,9 @@ impl MissionModel {
         (term_tasks, table)
     }
 
-    /// The pack as the config describes it, with `capacity_wh` overriding its capacity.
-    pub fn battery_spec(&self, capacity_wh: Option<f64>) -> Result<BatterySpec, String> {
+    /// The pack as the config describes it, with `capacity_wh` overriding its capacity. The
+    /// error names the bad field of the spec; callers say it is the battery's.
+    pub fn battery_spec(&self, capacity_wh: Option<f64>) -> Result<BatterySpec, BatteryError> {
         let battery = &self.config.battery;
         let nominal_v = battery.nominal_voltage_v() / f64::from(battery.cell_count);
         let resistance_ohm = battery.internal_resistance_ohm();
@@ -362,12 +363,9 @@ impl MissionModel {
                 nominal_v,
                 resistance_ohm,
             ),
-        }
-        .map_err(|error| format!("battery: {error}"))?;
+        }?;
         match battery.empty_cell_voltage_v {
-            Some(empty_v) => spec
-                .with_empty_cell_voltage_v(empty_v)
-                .map_err(|error| format!("battery: {error}")),
+            Some(empty_v) => spec.with_empty_cell_voltage_v(empty_v),
             None => Ok(spec),
         }
     }

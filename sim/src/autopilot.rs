@@ -478,7 +478,7 @@ impl MavlinkAutopilot {
         self.sequence = self.sequence.wrapping_add(1);
         self.encode_buffer.clear();
         mavlink::write_versioned_msg(&mut self.encode_buffer, MavlinkVersion::V2, header, message)
-            .map_err(|error| io::Error::other(error.to_string()))?;
+            .map_err(io::Error::other)?;
         match self.socket.send_to(&self.encode_buffer, self.runtime_addr) {
             Ok(_) => {}
             // The runtime is not listening (yet): dropped, as over a radio.

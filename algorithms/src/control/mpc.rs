@@ -37,6 +37,7 @@ use clarabel::solver::{
     DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
 };
 use nalgebra::{DMatrix, DVector, Vector2};
+use std::sync::Arc;
 use std::time::Instant;
 use thiserror::Error;
 
@@ -52,7 +53,9 @@ pub enum MpcError {
     #[error("MPC input {name} is not finite; every input must be a finite number")]
     NonFinite { name: &'static str },
     #[error("MPC solver setup failed: {0}")]
-    Setup(String),
+    Setup(#[source] SolverSetupError),
+    #[error("MPC solver setup failed: clarabel refuses data updates")]
+    DataUpdatesRefused,
     /// clarabel stopped at `time_limit`; the fallback velocity should be flown.
     #[error("MPC solve hit its time limit of {limit_s} s; fallback {fallback_ne_m_s:?} m/s")]
     TimeLimit {
@@ -73,6 +76,24 @@ pub enum MpcError {
         status: String,
         fallback_ne_m_s: Vector2<f64>,
     },
+}
+
+/// clarabel's error at setup (its settings or its problem data). Shared, so that [`MpcError`]
+/// stays `Clone`; clarabel's errors cannot be compared, so one equals only itself.
+#[derive(Debug, Clone, Error)]
+#[error(transparent)]
+pub struct SolverSetupError(Arc<dyn std::error::Error + Send + Sync>);
+
+impl SolverSetupError {
+    fn new(error: impl std::error::Error + Send + Sync + 'static) -> Self {
+        Self(Arc::new(error))
+    }
+}
+
+impl PartialEq for SolverSetupError {
+    fn eq(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 impl MpcError {
@@ -317,7 +338,7 @@ impl MpcController {
             .time_limit(config.solve_time_limit_s)
             .max_iter(config.max_iterations)
             .build()
-            .map_err(|e| MpcError::Setup(e.to_string()))?;
+            .map_err(|e| MpcError::Setup(SolverSetupError::new(e)))?;
         let q = vec![0.0; 2 * n];
         // A feasible placeholder (all limits, zero offsets); overwritten before every solve.
         let mut b = vec![config.max_speed_m_s; 8 * n];
@@ -328,9 +349,9 @@ impl MpcController {
         }
         let cones = [SupportedConeT::NonnegativeConeT(8 * n)];
         let solver = DefaultSolver::new(&p, &q, &a, &b, &cones, settings)
-            .map_err(|e| MpcError::Setup(e.to_string()))?;
+            .map_err(|e| MpcError::Setup(SolverSetupError::new(e)))?;
         if !solver.is_data_update_allowed() {
-            return Err(MpcError::Setup("clarabel refuses data updates".into()));
+            return Err(MpcError::DataUpdatesRefused);
         }
         Ok(Self {
             config,
@@ -566,6 +587,29 @@ mod tests {
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
     use std::f64::consts::PI;
+
+    #[test]
+    fn a_solver_setup_error_keeps_clarabels_error() {
+        let clarabel = DefaultSettingsBuilder::<f64>::default()
+            .direct_solve_method("no-such-method".to_string())
+            .build()
+            .unwrap_err();
+        let message = clarabel.to_string();
+        let error = MpcError::Setup(SolverSetupError::new(clarabel));
+        assert_eq!(
+            error.to_string(),
+            format!("MPC solver setup failed: {message}")
+        );
+        let cause = std::error::Error::source(&error).expect("clarabel's error");
+        assert_eq!(cause.to_string(), message);
+        // Shared, not copied: a clone is the same error, another error with the same text is not.
+        assert_eq!(error.clone(), error);
+        let again = DefaultSettingsBuilder::<f64>::default()
+            .direct_solve_method("no-such-method".to_string())
+            .build()
+            .unwrap_err();
+        assert_ne!(MpcError::Setup(SolverSetupError::new(again)), error);
+    }
 
     /// The cost of a correction sequence on one axis by an independent rollout: the lag's
     /// continuous solution step by step in the original variables (absolute setpoints, the

@@ -49,6 +49,7 @@ use super::stereo_altitude::{
 };
 use super::velocity_observer::{
     instant_motion, InstantMotion, PixelMotion, VelocityObserver, VelocityObserverConfig,
+    VelocityObserverError,
 };
 use crate::camera::{CameraPose, PinholeCamera};
 use crate::tracking::histogram::ColourHistogram;
@@ -105,11 +106,11 @@ pub enum HybridTrackingConfigError {
         why: &'static str,
     },
     #[error("tracker: {0}")]
-    Tracker(String),
+    Tracker(#[source] TrackingError),
     #[error("altitude filter: {0}")]
-    Altitude(String),
+    Altitude(#[source] StereoAltitudeError),
     #[error("velocity observer: {0}")]
-    Velocity(String),
+    Velocity(#[source] VelocityObserverError),
 }
 
 /// Why a frame's altitude came from the autopilot instead of the depth image.
@@ -305,12 +306,12 @@ impl HybridTracker {
                 "at least 4",
             ));
         }
-        let tracker = MultiTracker::new(config.tracker)
-            .map_err(|e| HybridTrackingConfigError::Tracker(e.to_string()))?;
+        let tracker =
+            MultiTracker::new(config.tracker).map_err(HybridTrackingConfigError::Tracker)?;
         let altitude_filter = AltitudeFilter::new(config.altitude_filter)
-            .map_err(|e| HybridTrackingConfigError::Altitude(e.to_string()))?;
+            .map_err(HybridTrackingConfigError::Altitude)?;
         let observer = VelocityObserver::new(config.velocity_observer)
-            .map_err(|e| HybridTrackingConfigError::Velocity(e.to_string()))?;
+            .map_err(HybridTrackingConfigError::Velocity)?;
         Ok(Self {
             camera: config.camera,
             pad_size_m: config.pad_size_m,

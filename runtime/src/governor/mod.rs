@@ -116,8 +116,6 @@ pub enum GovernorError {
     NoPhases,
     #[error("battery: {0}")]
     Battery(#[source] BatteryError),
-    #[error("{message}")]
-    BatteryConfig { message: String },
     #[error("cannot plan the mission: {0}")]
     Plan(#[from] PlanError),
 }
@@ -272,9 +270,7 @@ impl Governor {
         model: &MissionModel,
         config: GovernorConfig,
     ) -> Result<Self, GovernorError> {
-        let spec = model
-            .battery_spec(None)
-            .map_err(|message| GovernorError::BatteryConfig { message })?;
+        let spec = model.battery_spec(None).map_err(GovernorError::Battery)?;
         let estimator = BatteryEstimator::new(spec).map_err(GovernorError::Battery)?;
         Self::new(
             model.plan_problem(),

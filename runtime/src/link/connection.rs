@@ -98,7 +98,7 @@ impl ConnectionSpec {
                 if host.contains(char::is_whitespace) {
                     return Err(bad(format!("the host {host:?} contains whitespace")));
                 }
-                let port = parse_port(port, scheme == "udpin").map_err(bad)?;
+                let port = parse_port(input, port, scheme == "udpin")?;
                 let host = host.to_string();
                 Ok(match scheme {
                     "udpin" => Self::UdpIn { host, port },
@@ -119,10 +119,12 @@ impl ConnectionSpec {
                             .to_string(),
                     ));
                 }
-                let baud: u32 = baud.parse().map_err(|_| {
-                    bad(format!(
-                        "the baud rate {baud:?} is not a number; expected one of {BAUD_RATES:?}"
-                    ))
+                let baud: u32 = baud.parse().map_err(|source| LinkError::NotANumber {
+                    input: input.to_string(),
+                    field: "baud rate",
+                    text: baud.to_string(),
+                    expected: format!("one of {BAUD_RATES:?}"),
+                    source,
                 })?;
                 if !BAUD_RATES.contains(&baud) {
                     return Err(bad(format!(
@@ -174,15 +176,21 @@ impl ConnectionSpec {
     }
 }
 
-fn parse_port(port: &str, zero_allowed: bool) -> Result<u16, String> {
+/// The port of connection string `input`.
+fn parse_port(input: &str, port: &str, zero_allowed: bool) -> Result<u16, LinkError> {
     let low = if zero_allowed { 0 } else { 1 };
-    let value: u32 = port
-        .parse()
-        .map_err(|_| format!("the port {port:?} is not a number; expected {low}..=65535"))?;
+    let value: u32 = port.parse().map_err(|source| LinkError::NotANumber {
+        input: input.to_string(),
+        field: "port",
+        text: port.to_string(),
+        expected: format!("{low}..=65535"),
+        source,
+    })?;
     if value > 65_535 || value < low {
-        return Err(format!(
-            "the port {value} is out of range; expected {low}..=65535"
-        ));
+        return Err(LinkError::BadConnectionString {
+            input: input.to_string(),
+            why: format!("the port {value} is out of range; expected {low}..=65535"),
+        });
     }
     Ok(value as u16)
 }
@@ -457,7 +465,7 @@ impl UdpTransport {
             message,
             self.signing.as_ref(),
         )
-        .map_err(|error| io::Error::other(error.to_string()))?;
+        .map_err(io::Error::other)?;
         match self.socket.send_to(&self.encode_buffer, peer) {
             Ok(_) => Ok(true),
             // Nobody listening (yet): UDP drops it, as a radio would.
@@ -499,14 +507,33 @@ fn decode_with(datagram: &[u8], signing: Option<&SigningData>) -> Vec<(MavHeader
 mod tests {
     use super::*;
 
+    /// The reason after the echoed input.
     fn why(input: &str) -> String {
         match ConnectionSpec::parse(input) {
             Err(LinkError::BadConnectionString { input: echoed, why }) => {
                 assert_eq!(echoed, input);
                 why
             }
+            Err(error @ LinkError::NotANumber { .. }) => {
+                let prefix = format!("bad MAVLink connection string {input:?}: ");
+                let message = error.to_string();
+                message
+                    .strip_prefix(&prefix)
+                    .unwrap_or_else(|| panic!("{message:?} does not echo {input:?}"))
+                    .to_string()
+            }
             other => panic!("{input:?} parsed: {other:?}"),
         }
+    }
+
+    /// `the port "abc" is not a number (<the parser's reason>); expected 0..=65535`, checked
+    /// without spelling out the standard library's wording.
+    fn assert_not_a_number(why: &str, field_and_text: &str, expected: &str) {
+        assert!(
+            why.starts_with(&format!("the {field_and_text} is not a number (")),
+            "{why}"
+        );
+        assert!(why.ends_with(&format!("); expected {expected}")), "{why}");
     }
 
     #[test]
@@ -579,10 +606,7 @@ mod tests {
             "expected udpin:HOST:PORT, found no port"
         );
         assert!(why("udpin::14540").contains("the host is empty"));
-        assert_eq!(
-            why("udpin:0.0.0.0:abc"),
-            "the port \"abc\" is not a number; expected 0..=65535"
-        );
+        assert_not_a_number(&why("udpin:0.0.0.0:abc"), "port \"abc\"", "0..=65535");
         assert_eq!(
             why("udpin:0.0.0.0:70000"),
             "the port 70000 is out of range; expected 0..=65535"
@@ -591,18 +615,23 @@ mod tests {
             why("udpout:127.0.0.1:0"),
             "the port 0 is out of range; expected 1..=65535"
         );
-        assert_eq!(
-            why("tcpout:127.0.0.1:-1"),
-            "the port \"-1\" is not a number; expected 1..=65535"
-        );
+        assert_not_a_number(&why("tcpout:127.0.0.1:-1"), "port \"-1\"", "1..=65535");
         assert!(why("udpout:127.0.0.1:").contains("is not a number"));
         assert!(why("udpout:my host:14540").contains("whitespace"));
         assert!(why("serial:/dev/ttyACM0").contains("found no baud rate"));
         assert!(why("serial::57600").contains("the device is empty"));
-        assert_eq!(
-            why("serial:/dev/ttyACM0:fast"),
-            format!("the baud rate \"fast\" is not a number; expected one of {BAUD_RATES:?}")
+        assert_not_a_number(
+            &why("serial:/dev/ttyACM0:fast"),
+            "baud rate \"fast\"",
+            &format!("one of {BAUD_RATES:?}"),
         );
+        // The parser's error is kept: a port too large for any integer says so.
+        let error = ConnectionSpec::parse("udpin:0.0.0.0:99999999999").unwrap_err();
+        let cause = std::error::Error::source(&error)
+            .and_then(|cause| cause.downcast_ref::<std::num::ParseIntError>())
+            .expect("the integer parser's error");
+        assert_eq!(cause.kind(), &std::num::IntErrorKind::PosOverflow);
+        assert!(error.to_string().contains(&cause.to_string()), "{error}");
         assert_eq!(
             why("serial:/dev/ttyACM0:12345"),
             format!("the baud rate 12345 is not a standard rate; expected one of {BAUD_RATES:?}")

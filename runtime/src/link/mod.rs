@@ -22,6 +22,18 @@ pub use mapping::{
 pub enum LinkError {
     #[error("bad MAVLink connection string {input:?}: {why}")]
     BadConnectionString { input: String, why: String },
+    #[error(
+        "bad MAVLink connection string {input:?}: the {field} {text:?} is not a number \
+         ({source}); expected {expected}"
+    )]
+    NotANumber {
+        input: String,
+        /// `port` or `baud rate`.
+        field: &'static str,
+        text: String,
+        expected: String,
+        source: std::num::ParseIntError,
+    },
     #[error("cannot open MAVLink connection {spec}: {source}")]
     Open {
         spec: String,

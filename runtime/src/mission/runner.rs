@@ -15,7 +15,7 @@ use crate::bus::{Publisher, Subscriber};
 use crate::camera::{CameraSource, CameraSourceError};
 use crate::clock::Timestamp;
 use crate::energy::MissionModel;
-use crate::governor::{Governor, GovernorEvent};
+use crate::governor::{Governor, GovernorError, GovernorEvent};
 use crate::link::{FailsafeAction, LinkError, LinkStatus, LinkUpdate, MavlinkLink, VehicleCommand};
 use crate::record::channels::StepRecord;
 use crate::record::recorder::{BatteryEstimate, QosLevels, TaskLevelRecord};
@@ -63,7 +63,7 @@ pub enum RunnerError {
     #[error(transparent)]
     Link(#[from] LinkError),
     #[error("governor: {0}")]
-    Governor(String),
+    Governor(#[source] GovernorError),
     #[error("bus: {0}")]
     Bus(#[from] crate::bus::BusError),
     #[error("--fix {task}={value}: {why}")]
@@ -141,7 +141,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
     ) -> Result<Self, RunnerError> {
         let governor =
             Governor::from_mission(&model, model.config.governor.clone().unwrap_or_default())
-                .map_err(|e| RunnerError::Governor(e.to_string()))?;
+                .map_err(RunnerError::Governor)?;
         let fixed = resolve_fixed_levels(&model, &options.fixed_levels)?;
         let bus = scheduler.bus().clone();
         Ok(Self {

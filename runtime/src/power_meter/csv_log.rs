@@ -10,6 +10,7 @@
 use super::{Clock, MeterError, PowerMeter, PowerReading};
 use std::collections::VecDeque;
 use std::io::{Read, Seek, SeekFrom};
+use std::num::ParseFloatError;
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
@@ -28,29 +29,49 @@ pub fn unix_clock() -> Clock {
     })
 }
 
+/// Why a line of the log is not a reading.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LineError {
+    #[error("{cells} cells, expected 2: timestamp_s,power_w")]
+    Cells { cells: usize },
+    #[error("{column} `{text}` is not a finite number ({source})")]
+    NotANumber {
+        column: &'static str,
+        text: String,
+        source: ParseFloatError,
+    },
+    #[error("{column} `{text}` is not a finite number")]
+    NotFinite { column: &'static str, text: String },
+    #[error("power_w {power_w} is negative")]
+    NegativePower { power_w: f64 },
+}
+
 /// One data line: `timestamp_s,power_w`. `Ok(None)` for a blank line.
-pub fn parse_line(line: &str) -> Result<Option<(f64, f64)>, String> {
+pub fn parse_line(line: &str) -> Result<Option<(f64, f64)>, LineError> {
     let line = line.trim();
     if line.is_empty() {
         return Ok(None);
     }
     let cells: Vec<&str> = line.split(',').map(str::trim).collect();
     if cells.len() != 2 {
-        return Err(format!(
-            "{} cells, expected 2: timestamp_s,power_w",
-            cells.len()
-        ));
+        return Err(LineError::Cells { cells: cells.len() });
     }
-    let number = |cell: &str, what: &str| -> Result<f64, String> {
-        cell.parse::<f64>()
-            .ok()
-            .filter(|v| v.is_finite())
-            .ok_or_else(|| format!("{what} `{cell}` is not a finite number"))
+    let number = |column: &'static str, text: &str| -> Result<f64, LineError> {
+        let text = text.to_string();
+        match text.parse::<f64>() {
+            Ok(value) if value.is_finite() => Ok(value),
+            Ok(_) => Err(LineError::NotFinite { column, text }),
+            Err(source) => Err(LineError::NotANumber {
+                column,
+                text,
+                source,
+            }),
+        }
     };
-    let t = number(cells[0], "timestamp_s")?;
-    let w = number(cells[1], "power_w")?;
+    let t = number("timestamp_s", cells[0])?;
+    let w = number("power_w", cells[1])?;
     if w < 0.0 {
-        return Err(format!("power_w {w} is negative"));
+        return Err(LineError::NegativePower { power_w: w });
     }
     Ok(Some((t, w)))
 }
@@ -119,11 +140,11 @@ impl CsvLogMeter {
             match parse_line(line) {
                 Ok(Some(reading)) => self.readings.push_back(reading),
                 Ok(None) => {}
-                Err(message) => {
+                Err(source) => {
                     return Err(MeterError::Csv {
                         path: self.path.clone(),
                         line: self.lines,
-                        message,
+                        source,
                     })
                 }
             }
@@ -178,10 +199,8 @@ impl PowerMeter for CsvLogMeter {
                         })
                     }
                     None => {
-                        return Err(MeterError::Csv {
+                        return Err(MeterError::CsvNoReading {
                             path: self.path.clone(),
-                            line: self.lines,
-                            message: "no reading up to now yet (is the logger running, and do the clocks agree?)".to_string(),
                         })
                     }
                 }

@@ -82,12 +82,37 @@ pub enum MeterError {
         code: u32,
         message: String,
     },
-    #[error("{path}:{line}: {message}")]
+    // libloading's own text is only "dlopen failed"; dlerror()'s (which file, why) is its source.
+    #[error(
+        "cannot load the library (no NVIDIA driver?): {source}{}",
+        std::error::Error::source(source).map_or(String::new(), |detail| format!(": {detail}"))
+    )]
+    NvmlLoad { source: libloading::Error },
+    #[error("the library lacks {symbol}: not NVML?")]
+    NvmlSymbol {
+        symbol: &'static str,
+        source: libloading::Error,
+    },
+    #[error("NVML sees no GPU")]
+    NvmlNoGpu,
+    #[error("{path}: a range of 0 µJ")]
+    ZeroRange { path: PathBuf },
+    #[error(
+        "cannot read {path}: {source} (kernels since 2020 let only root read energy_uj: run as \
+         root, or `sudo chmod a+r {path}`)"
+    )]
+    RootOnly {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}:{line}: {source}")]
     Csv {
         path: PathBuf,
         line: usize,
-        message: String,
+        source: csv_log::LineError,
     },
+    #[error("{path}: no reading up to now yet (is the logger running, and do the clocks agree?)")]
+    CsvNoReading { path: PathBuf },
     #[error("{path}: the newest reading is {age_s:.1} s old (at most {max_age_s:.1} s allowed): is the external meter still logging?")]
     Stale {
         path: PathBuf,
@@ -202,7 +227,11 @@ pub fn discover(options: &DiscoverOptions) -> Discovery {
                 probes.push(Probe::accepted("nvml", library.display(), meter.describe()));
                 meters.push(Box::new(meter));
             }
-            Err(reason) => probes.push(Probe::rejected("nvml", library.display(), reason)),
+            Err(error) => probes.push(Probe::rejected(
+                "nvml",
+                library.display(),
+                error.to_string(),
+            )),
         },
         None => probes.push(Probe::rejected("nvml", "-", "not probed (switched off)")),
     }

@@ -42,35 +42,32 @@ pub struct NvmlMeter {
 }
 
 impl NvmlMeter {
-    /// Loads the library, initialises NVML and finds the GPUs; the error says why not, in
-    /// words for the probe list.
-    pub fn open(library_path: &Path) -> Result<NvmlMeter, String> {
+    /// Loads the library, initialises NVML and finds the GPUs; the error says why not.
+    pub fn open(library_path: &Path) -> Result<NvmlMeter, MeterError> {
         // SAFETY: loading the NVIDIA driver's NVML library runs its initialisers, which have no
         // preconditions on our side.
-        let library = unsafe { Library::new(library_path) }.map_err(|e| {
-            // libloading puts dlerror()'s text (which file, why) in the source.
-            let detail = std::error::Error::source(&e).map_or(String::new(), |s| format!(": {s}"));
-            format!("cannot load the library (no NVIDIA driver?): {e}{detail}")
-        })?;
+        let library = unsafe { Library::new(library_path) }
+            .map_err(|source| MeterError::NvmlLoad { source })?;
         // SAFETY: the symbols are looked up by the names and C signatures of NVML's public
         // header (nvml.h); the function pointers are used only while `library` is loaded.
         let (init, count, handle, name, api) = unsafe {
-            let symbol = |name: &str| format!("the library lacks {name}: not NVML?");
+            let symbol =
+                |symbol: &'static str| move |source| MeterError::NvmlSymbol { symbol, source };
             let init: InitFn = *library
                 .get::<InitFn>("nvmlInit_v2")
-                .map_err(|_| symbol("nvmlInit_v2"))?;
+                .map_err(symbol("nvmlInit_v2"))?;
             let shutdown: InitFn = *library
                 .get::<InitFn>("nvmlShutdown")
-                .map_err(|_| symbol("nvmlShutdown"))?;
+                .map_err(symbol("nvmlShutdown"))?;
             let count: CountFn = *library
                 .get::<CountFn>("nvmlDeviceGetCount_v2")
-                .map_err(|_| symbol("nvmlDeviceGetCount_v2"))?;
+                .map_err(symbol("nvmlDeviceGetCount_v2"))?;
             let handle: HandleFn = *library
                 .get::<HandleFn>("nvmlDeviceGetHandleByIndex_v2")
-                .map_err(|_| symbol("nvmlDeviceGetHandleByIndex_v2"))?;
+                .map_err(symbol("nvmlDeviceGetHandleByIndex_v2"))?;
             let power_usage: PowerFn = *library
                 .get::<PowerFn>("nvmlDeviceGetPowerUsage")
-                .map_err(|_| symbol("nvmlDeviceGetPowerUsage"))?;
+                .map_err(symbol("nvmlDeviceGetPowerUsage"))?;
             let name: Option<NameFn> = library.get::<NameFn>("nvmlDeviceGetName").ok().map(|s| *s);
             let error_string: Option<ErrorStringFn> = library
                 .get::<ErrorStringFn>("nvmlErrorString")
@@ -88,15 +85,11 @@ impl NvmlMeter {
                 },
             )
         };
-        let check = |call: &'static str, code: NvmlReturn| -> Result<(), String> {
-            if code == NVML_SUCCESS {
-                Ok(())
-            } else {
-                Err(api.error(call, code).to_string())
-            }
-        };
         // SAFETY: nvmlInit_v2 takes no arguments.
-        check("nvmlInit_v2", unsafe { init() })?;
+        let code = unsafe { init() };
+        if code != NVML_SUCCESS {
+            return Err(api.error("nvmlInit_v2", code));
+        }
         let mut meter = NvmlMeter {
             api,
             devices: Vec::new(),
@@ -108,17 +101,14 @@ impl NvmlMeter {
         // SAFETY: NVML is initialised; `n` is a valid out-pointer.
         let code = unsafe { count(&mut n) };
         if code != NVML_SUCCESS {
-            return Err(meter.api.error("nvmlDeviceGetCount_v2", code).to_string());
+            return Err(meter.api.error("nvmlDeviceGetCount_v2", code));
         }
         for index in 0..n {
             let mut device: Device = std::ptr::null_mut();
             // SAFETY: `index` < the count NVML gave; `device` is a valid out-pointer.
             let code = unsafe { handle(index, &mut device) };
             if code != NVML_SUCCESS {
-                return Err(meter
-                    .api
-                    .error("nvmlDeviceGetHandleByIndex_v2", code)
-                    .to_string());
+                return Err(meter.api.error("nvmlDeviceGetHandleByIndex_v2", code));
             }
             let mut label = format!("GPU {index}");
             if let Some(name) = name {
@@ -136,10 +126,10 @@ impl NvmlMeter {
             meter.devices.push((label, device));
         }
         if meter.devices.is_empty() {
-            return Err("NVML sees no GPU".to_string());
+            return Err(MeterError::NvmlNoGpu);
         }
         // A GPU without power readings (some consumer boards) cannot be used.
-        meter.read().map_err(|e| e.to_string())?;
+        meter.read()?;
         Ok(meter)
     }
 }

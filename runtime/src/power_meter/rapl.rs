@@ -100,27 +100,23 @@ impl PowerMeter for RaplMeter {
 }
 
 /// Opens one zone: its name, range and a first counter reading.
-fn open_zone(dir: &Path, id: &str, now_s: f64) -> Result<Zone, String> {
-    let name = read_text(&dir.join("name")).map_err(|e| e.to_string())?;
+fn open_zone(dir: &Path, id: &str, now_s: f64) -> Result<Zone, MeterError> {
+    let name = read_text(&dir.join("name"))?;
     let max_path = dir.join("max_energy_range_uj");
-    let max_uj = read_u64(&max_path).map_err(|e| e.to_string())?;
+    let max_uj = read_u64(&max_path)?;
     if max_uj == 0 {
-        return Err(format!("{}: a range of 0 µJ", max_path.display()));
+        return Err(MeterError::ZeroRange { path: max_path });
     }
     let energy = dir.join("energy_uj");
-    let now_uj = read_u64(&energy).map_err(|error| match &error {
-        MeterError::Io { source, .. }
+    let now_uj = read_u64(&energy).map_err(|error| match error {
+        MeterError::Io { path, source }
             if source.kind() == std::io::ErrorKind::PermissionDenied =>
         {
-            format!(
-                "{error} (kernels since 2020 let only root read energy_uj: run as root, or `sudo chmod a+r {}`)",
-                energy.display()
-            )
+            MeterError::RootOnly { path, source }
         }
-        _ => error.to_string(),
+        error => error,
     })?;
-    let counter = EnergyCounter::new(energy.clone(), Some(max_uj), now_uj, now_s)
-        .map_err(|e| e.to_string())?;
+    let counter = EnergyCounter::new(energy.clone(), Some(max_uj), now_uj, now_s)?;
     Ok(Zone {
         label: format!("{name} ({id})"),
         name,
@@ -158,7 +154,7 @@ pub fn discover(root: &Path, mut clock: Clock) -> (Option<RaplMeter>, Vec<Probe>
     for (id, dir) in zones {
         match open_zone(&dir, &id, now_s) {
             Ok(zone) => opened.push(zone),
-            Err(why) => probes.push(Probe::rejected(NAME, dir.display(), why)),
+            Err(error) => probes.push(Probe::rejected(NAME, dir.display(), error.to_string())),
         }
     }
     if opened.is_empty() {

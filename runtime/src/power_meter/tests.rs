@@ -558,10 +558,22 @@ fn csv_log_merges_readings_by_time() {
     assert!(error.contains("2.7 s old"), "{error}");
     // Garbage names its line.
     writeln!(f, "103.1,lots").unwrap();
-    let error = meter.read().unwrap_err().to_string();
+    let error = meter.read().unwrap_err();
     assert!(
-        error.ends_with("meter.csv:7: power_w `lots` is not a finite number"),
-        "{error}"
+        matches!(
+            &error,
+            MeterError::Csv {
+                line: 7,
+                source: csv_log::LineError::NotANumber { .. },
+                ..
+            }
+        ),
+        "{error:?}"
+    );
+    let message = error.to_string();
+    assert!(
+        message.contains("meter.csv:7: power_w `lots` is not a finite number"),
+        "{message}"
     );
 }
 
@@ -571,13 +583,23 @@ fn csv_log_line_rules() {
     assert_eq!(csv_log::parse_line("   "), Ok(None));
     assert!(csv_log::parse_line("1,2,3")
         .unwrap_err()
+        .to_string()
         .contains("3 cells"));
     assert!(csv_log::parse_line("1,-2")
         .unwrap_err()
+        .to_string()
         .contains("negative"));
     assert!(csv_log::parse_line("nan,2")
         .unwrap_err()
+        .to_string()
         .contains("timestamp_s"));
+    // A cell that is no number keeps the parser's reason.
+    let error = csv_log::parse_line("1,2 W").unwrap_err();
+    let cause = std::error::Error::source(&error).expect("the float parser's error");
+    assert!(error
+        .to_string()
+        .starts_with("power_w `2 W` is not a finite number"));
+    assert!(error.to_string().contains(&cause.to_string()), "{error}");
     let readings = [(1.0, 2.0), (2.0, 4.0), (3.0, 9.0)];
     assert_eq!(csv_log::mean_in_window(&readings, 1.0, 3.0), Some(6.5));
     assert_eq!(csv_log::mean_in_window(&readings, 3.0, 4.0), None);
@@ -591,11 +613,20 @@ fn nvml_absent_or_not_nvml_is_a_reason() {
     let error = nvml::NvmlMeter::open(Path::new("/nonexistent/libnvidia-ml.so.1"))
         .err()
         .unwrap();
-    assert!(error.contains("cannot load the library"), "{error}");
+    assert!(matches!(error, MeterError::NvmlLoad { .. }), "{error:?}");
+    // The loader's error is kept, and its text (which file, why) is in the message.
+    assert!(std::error::Error::source(&error).is_some());
+    let message = error.to_string();
+    assert!(message.contains("cannot load the library"), "{message}");
+    assert!(
+        message.contains("/nonexistent/libnvidia-ml.so.1"),
+        "{message}"
+    );
     // A real library that is not NVML.
     if let Ok(libc) = std::fs::canonicalize("/lib/x86_64-linux-gnu/libc.so.6") {
         let error = nvml::NvmlMeter::open(&libc).err().unwrap();
-        assert!(error.contains("lacks nvmlInit_v2"), "{error}");
+        assert!(std::error::Error::source(&error).is_some());
+        assert!(error.to_string().contains("lacks nvmlInit_v2"), "{error}");
     }
 }
 

@@ -4,6 +4,7 @@ use super::cadence::{Cadence, Completion};
 use super::stats::StatsAccum;
 use super::timing::SplitMix64;
 use super::*;
+use crate::task::TaskError;
 
 /// What a build hands to an execution mode.
 pub(crate) struct Parts {
@@ -128,7 +129,7 @@ impl TaskRunner {
                 tracing::info!(task = %self.config.name, level = self.level, period_ms = self.levels[self.level].period_ms, "task started");
                 None
             }
-            Err(message) => Some(self.fail(message)),
+            Err(error) => Some(self.fail(&error)),
         }
     }
 
@@ -138,7 +139,7 @@ impl TaskRunner {
     }
 
     /// `set_qos` then `start`, with panics caught.
-    fn start_instance(&mut self, instance: &mut dyn Task, now: Timestamp) -> Result<(), String> {
+    fn start_instance(&mut self, instance: &mut dyn Task, now: Timestamp) -> Result<(), TaskError> {
         let level = &self.levels[self.level];
         let mut ctx = TaskContext::new(&self.config.name, now, level, &self.health, self.seed)
             .with_activation(self.activations);
@@ -159,22 +160,22 @@ impl TaskRunner {
             self.restarts += 1;
             lock(&self.stats).restarts += 1;
             report.restarted = true;
-            let created = self
-                .factory
-                .create(&self.params, &self.config, &self.bus)
-                .map_err(|error| error.to_string());
-            let started = created.and_then(|mut instance| {
-                self.start_instance(instance.as_mut(), now)
-                    .map(|()| instance)
-            });
+            let started: Result<_, Box<dyn std::error::Error>> =
+                match self.factory.create(&self.params, &self.config, &self.bus) {
+                    Ok(mut instance) => self
+                        .start_instance(instance.as_mut(), now)
+                        .map(|()| instance)
+                        .map_err(Into::into),
+                    Err(error) => Err(error.into()),
+                };
             match started {
                 Ok(instance) => {
                     self.instance = Some(instance);
                     self.set_state(TaskHealth::Running);
                     tracing::warn!(task = %self.config.name, restarts = self.restarts, "task restarted");
                 }
-                Err(message) => {
-                    report.failure = Some(self.fail(message));
+                Err(error) => {
+                    report.failure = Some(self.fail(error.as_ref()));
                     return report;
                 }
             }
@@ -194,8 +195,8 @@ impl TaskRunner {
         report.reported_cost = ctx.reported_step_cost();
         report.stepped = true;
         self.activations += 1;
-        if let Err(message) = flatten(result) {
-            report.failure = Some(self.fail(message));
+        if let Err(error) = flatten(result) {
+            report.failure = Some(self.fail(&error));
         }
         report
     }
@@ -271,11 +272,13 @@ impl TaskRunner {
         tracing::info!(task = %self.config.name, from, to = level, knob = %new_level.knob, value = new_level.value, period_ms = new_level.period_ms, "QoS level changed");
         let instance = self.instance.as_mut()?;
         let result = catch_unwind(AssertUnwindSafe(|| instance.set_qos(new_level)));
-        flatten(result).err().map(|message| self.fail(message))
+        flatten(result).err().map(|error| self.fail(&error))
     }
 
     /// The instance failed: stop and drop it, then restart later or give up per the policy.
-    fn fail(&mut self, message: String) -> Failure {
+    /// The error is kept as text, in the stats and the failure report.
+    fn fail(&mut self, error: &dyn std::error::Error) -> Failure {
+        let message = error.to_string();
         {
             let mut stats = lock(&self.stats);
             stats.failures += 1;
@@ -337,10 +340,7 @@ impl TaskRunner {
     }
 }
 
-fn flatten(result: std::thread::Result<Result<(), crate::task::TaskError>>) -> Result<(), String> {
-    match result {
-        Ok(Ok(())) => Ok(()),
-        Ok(Err(error)) => Err(error.to_string()),
-        Err(payload) => Err(panic_message(payload.as_ref())),
-    }
+/// A call's own error, or its panic as a failure (as a plugin's constructor's panic is).
+fn flatten(result: std::thread::Result<Result<(), TaskError>>) -> Result<(), TaskError> {
+    result.unwrap_or_else(|payload| Err(TaskError::Failed(panic_message(payload.as_ref()))))
 }

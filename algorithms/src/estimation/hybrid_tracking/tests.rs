@@ -57,3 +57,51 @@ fn keypoints_on_the_target_are_masked_out() {
     assert_eq!(left, vec![5.0, 60.0]);
     assert_eq!(features.descriptors[1].0[0], 60);
 }
+
+fn valid_config() -> HybridTrackingConfig {
+    HybridTrackingConfig {
+        camera: PinholeCamera::from_fov(640, 480, 60f64.to_radians()).unwrap(),
+        pad_size_m: 1.0,
+        tracker: TrackerConfig::default(),
+        altitude_window_fraction: 0.2,
+        altitude_min_valid_fraction: 0.3,
+        stereo_min_range_m: 0.5,
+        stereo_max_range_m: 20.0,
+        altitude_filter: AltitudeFilterConfig::default(),
+        velocity_observer: VelocityObserverConfig::default(),
+        homography_min_altitude_m: 3.0,
+        max_ugv_speed_m_s: 5.0,
+        ransac_threshold_px: 3.0,
+        homography_min_inliers: 8,
+    }
+}
+
+#[test]
+fn a_bad_part_config_names_the_part_and_keeps_its_error() {
+    assert!(HybridTracker::new(valid_config()).is_ok());
+    let mut config = valid_config();
+    config.tracker.a1_distance = -0.5;
+    let error = HybridTracker::new(config).err().unwrap();
+    assert!(
+        matches!(
+            &error,
+            HybridTrackingConfigError::Tracker(TrackingError::Config {
+                name: "a1_distance",
+                ..
+            })
+        ),
+        "{error:?}"
+    );
+    let cause = std::error::Error::source(&error).expect("the tracker's error");
+    assert!(error.to_string().starts_with("tracker: "), "{error}");
+    assert!(error.to_string().ends_with(&cause.to_string()), "{error}");
+
+    let mut config = valid_config();
+    config.velocity_observer.sigma_s = -1.0;
+    let error = HybridTracker::new(config).err().unwrap();
+    assert!(
+        matches!(&error, HybridTrackingConfigError::Velocity(_)),
+        "{error:?}"
+    );
+    assert!(std::error::Error::source(&error).is_some());
+}

@@ -38,6 +38,30 @@ fn the_rest_of_the_mission_is_shortened_and_corrected() {
     assert_eq!(rest.phases[0].flight_power_w, 130.0);
 }
 
+/// A pack the config cannot describe stops the governor with the battery's own error.
+#[test]
+fn a_bad_battery_is_named_with_its_cause() {
+    let mut model = reference_model();
+    model.config.battery.capacity_mah = None;
+    model.config.battery.capacity_wh = Some(0.0);
+    let error = Governor::from_mission(&model, GovernorConfig::default())
+        .err()
+        .unwrap();
+    assert!(
+        matches!(
+            &error,
+            GovernorError::Battery(BatteryError::InvalidSpec {
+                field: "capacity_wh",
+                ..
+            })
+        ),
+        "{error:?}"
+    );
+    let cause = std::error::Error::source(&error).expect("the battery's error");
+    assert_eq!(error.to_string(), format!("battery: {cause}"));
+    assert!(error.to_string().contains("capacity_wh = 0"), "{error}");
+}
+
 /// Without a margin the governor starts from `qosrt plan`'s plan: the same reserve, the
 /// same usable energy, the same levels (74 Wh nominal, 72.5 usable, 18.1 reserve, 54.27 Wh
 /// planned, utility 10.75). With the default margin the reference mission has no cheaper
