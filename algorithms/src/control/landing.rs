@@ -153,6 +153,10 @@ pub struct LandingConfig {
     /// stalls there is the touchdown (the autopilot's own land detector takes about a second,
     /// while a vehicle on the ground pushed by setpoints leans over).
     pub touchdown_correction_height_m: f64,
+    /// The band reaches higher when the descent is fast: at least this long before contact at
+    /// the measured descent rate. The autopilot's lean answers a command about this late (the
+    /// real PX4 descending at 1.5 m/s still leaned into the last 0.3 m's correction at contact).
+    pub touchdown_correction_lead_s: f64,
     pub max_touchdown_correction_m_s: f64,
     /// Gust feed-forward after the commit: the change of the aerodynamic acceleration from its
     /// baseline (low-passed over `gust_baseline_tau_s`, what the autopilot's velocity integrator
@@ -198,6 +202,7 @@ impl Default for LandingConfig {
             wind_shear_lead_s: 0.3,
             max_final_correction_m_s: 1.5,
             touchdown_correction_height_m: 0.3,
+            touchdown_correction_lead_s: 0.0,
             max_touchdown_correction_m_s: 0.3,
             gust_feed_forward_s: 0.0,
             gust_baseline_tau_s: 1.0,
@@ -252,6 +257,10 @@ impl LandingConfig {
             ("keep_in_view_tau_s", self.keep_in_view_tau_s),
             ("wind_shear_roughness_m", self.wind_shear_roughness_m),
             ("wind_shear_lead_s", self.wind_shear_lead_s),
+            (
+                "touchdown_correction_lead_s",
+                self.touchdown_correction_lead_s,
+            ),
             (
                 "touchdown_correction_height_m",
                 self.touchdown_correction_height_m,

@@ -81,6 +81,9 @@ struct Params {
     max_final_correction_m_s: f64,
     #[serde(default = "default_touchdown_correction_height")]
     touchdown_correction_height_m: f64,
+    /// The band reaches at least this long before contact at the measured descent rate.
+    #[serde(default = "default_touchdown_correction_lead")]
+    touchdown_correction_lead_s: f64,
     #[serde(default = "default_max_touchdown_correction")]
     max_touchdown_correction_m_s: f64,
     /// After the commit and above `touchdown_correction_height_m`, a gust's push (the
@@ -148,6 +151,9 @@ fn default_max_final_correction() -> f64 {
 }
 fn default_touchdown_correction_height() -> f64 {
     LandingConfig::default().touchdown_correction_height_m
+}
+fn default_touchdown_correction_lead() -> f64 {
+    LandingConfig::default().touchdown_correction_lead_s
 }
 fn default_max_touchdown_correction() -> f64 {
     LandingConfig::default().max_touchdown_correction_m_s
@@ -240,6 +246,7 @@ impl GuidanceTask {
             wind_shear_lead_s: params.wind_shear_lead_s,
             max_final_correction_m_s: params.max_final_correction_m_s,
             touchdown_correction_height_m: params.touchdown_correction_height_m,
+            touchdown_correction_lead_s: params.touchdown_correction_lead_s,
             max_touchdown_correction_m_s: params.max_touchdown_correction_m_s,
             gust_feed_forward_s: params.gust_feed_forward_s,
             gust_baseline_tau_s: params.gust_baseline_tau_s,
@@ -437,6 +444,7 @@ mod tests {
              proportional_gain_close_per_s = 8.0\nderivative_gain_close = 2.5\n\
              wind_shear_roughness_m = 0.05\nwind_shear_lead_s = 0.4\ngain_switch_height_m = 1.5\n\
              touchdown_correction_height_m = 0.25\nmax_touchdown_correction_m_s = 0.2\n\
+             touchdown_correction_lead_s = 0.4\n\
              max_final_correction_m_s = 1.2\ngust_feed_forward_s = 0.6\ngust_baseline_tau_s = 2.0",
         )
         .unwrap();
@@ -450,6 +458,7 @@ mod tests {
         assert_eq!(config.wind_shear_roughness_m, 0.05);
         assert_eq!(config.wind_shear_lead_s, 0.4);
         assert_eq!(config.touchdown_correction_height_m, 0.25);
+        assert_eq!(config.touchdown_correction_lead_s, 0.4);
         assert_eq!(config.max_touchdown_correction_m_s, 0.2);
         assert_eq!(config.max_final_correction_m_s, 1.2);
         assert_eq!(config.gust_feed_forward_s, 0.6);
@@ -465,6 +474,7 @@ mod tests {
         );
         assert_eq!(plain.wind_shear_roughness_m, 0.0);
         assert_eq!(plain.gust_feed_forward_s, 0.0);
+        assert_eq!(plain.touchdown_correction_lead_s, 0.0);
         assert_eq!(plain.pid.gains.switch_height_m, 4.0);
         for (params, name) in [
             ("wind_compensation_tau_s = -1.0", "wind_compensation_tau_s"),
@@ -477,6 +487,10 @@ mod tests {
             (
                 "touchdown_correction_height_m = -0.1",
                 "touchdown_correction_height_m",
+            ),
+            (
+                "touchdown_correction_lead_s = -0.4",
+                "touchdown_correction_lead_s",
             ),
             ("max_final_correction_m_s = 0.0", "max_final_correction_m_s"),
             (

@@ -306,8 +306,7 @@ impl Machine {
             self.aerodynamic_baseline_ne_m_s2,
         ) {
             (Some(now), Some(baseline))
-                if self.mode == LandingMode::FinalLanding
-                    && height_m > c.touchdown_correction_height_m =>
+                if self.mode == LandingMode::FinalLanding && !self.in_touchdown_band(height_m) =>
             {
                 -(now - baseline) * c.gust_feed_forward_s
             }
@@ -330,7 +329,7 @@ impl Machine {
         let horizontal = if self.mode == LandingMode::FinalLanding {
             let with_the_pad =
                 self.platform_feed_forward_ne_m_s(input) + self.velocity_shortfall_ne_m_s;
-            let limit_m_s = if height_m <= c.touchdown_correction_height_m {
+            let limit_m_s = if self.in_touchdown_band(height_m) {
                 c.max_touchdown_correction_m_s
             } else {
                 c.max_final_correction_m_s
@@ -349,6 +348,16 @@ impl Machine {
             horizontal_error_m: error_m,
             centred_radius_m: radius_m,
         })
+    }
+
+    /// The last centimetres before contact, where a correction only tips the vehicle: below
+    /// `touchdown_correction_height_m`, or less than `touchdown_correction_lead_s` from the pad
+    /// at the measured descent rate.
+    fn in_touchdown_band(&self, height_m: f64) -> bool {
+        let c = self.config;
+        height_m
+            <= c.touchdown_correction_height_m
+                .max(self.descent_rate_m_s * c.touchdown_correction_lead_s)
     }
 
     fn update_mode(

@@ -148,12 +148,20 @@ fn a_recentre_below_the_commit_height_climbs_back_to_it() {
 
 /// Committed, 0.8 m north of the pad: the command strays from the platform's velocity
 /// towards the pad by at most the final correction, and by at most the touchdown one in the
-/// last centimetres.
+/// last centimetres (the band by height alone: the heights here are set, not flown).
 #[test]
 fn in_the_last_centimetres_the_correction_is_bounded() {
-    let config = LandingConfig::default();
+    let config = LandingConfig {
+        touchdown_correction_lead_s: 0.0,
+        ..LandingConfig::default()
+    };
     let committed_then_off_centre = |height_m: f64| {
-        let (mut c, mut t_s) = descending();
+        let mut c = LandingController::new(config).unwrap();
+        let mut t_s = 0.0;
+        assert_eq!(
+            run(&mut c, &mut t_s, 1.0, Some(0.0), 7.5).mode,
+            LandingMode::Descend
+        );
         let lh_m = c.config().final_landing_height_m;
         assert_eq!(
             run(&mut c, &mut t_s, 1.0, Some(0.0), lh_m).mode,
@@ -177,6 +185,59 @@ fn in_the_last_centimetres_the_correction_is_bounded() {
         "{within:?}"
     );
     assert!(within.x < 0.0 && within.y.abs() < 1e-12, "{within:?}");
+}
+
+/// Flown down at 2 m/s after the commit, 0.8 m north of the pad: the small corrections
+/// begin `touchdown_correction_lead_s` before contact at the descent's rate (0.8 m up), not
+/// at `touchdown_correction_height_m` (0.3 m).
+#[test]
+fn a_fast_descent_enters_the_touchdown_band_early() {
+    let config = LandingConfig {
+        touchdown_correction_lead_s: 0.4,
+        ..close_in_config()
+    };
+    let band_m = config.final_descent_speed_m_s * config.touchdown_correction_lead_s;
+    assert!(
+        band_m > config.touchdown_correction_height_m + 0.3,
+        "{band_m}"
+    );
+    let mut c = LandingController::new(config).unwrap();
+    let mut t_s = 0.0;
+    run(&mut c, &mut t_s, 1.0, Some(0.0), 7.5);
+    let lh_m = config.final_landing_height_m;
+    assert_eq!(
+        run(&mut c, &mut t_s, 1.0, Some(0.0), lh_m).mode,
+        LandingMode::FinalLanding
+    );
+    let platform = input(0.0, None, 0.0).platform_velocity_ne_m_s;
+    let (mut height_m, mut above, mut within) = (lh_m, 0, 0);
+    loop {
+        t_s += DT_S;
+        let out = c
+            .step(&input(t_s, fix_at(0.8, 0.0, height_m), height_m))
+            .unwrap();
+        if out.mode != LandingMode::FinalLanding {
+            break;
+        }
+        let correction = out.velocity_setpoint_ned_m_s.xy() - platform;
+        assert!(correction.x < 0.0, "{correction:?} at {height_m} m");
+        // A margin of one step either side of the band's edge, and the first steps after the
+        // commit, while the measured descent rate settles.
+        if height_m > band_m + 0.15 && height_m < lh_m - 0.25 {
+            above += 1;
+            let excess = correction.norm() - config.max_final_correction_m_s;
+            assert!(excess.abs() < 1e-9, "{correction:?} at {height_m} m");
+        } else if height_m < band_m - 0.15 {
+            within += 1;
+            let excess = correction.norm() - config.max_touchdown_correction_m_s;
+            assert!(excess.abs() < 1e-9, "{correction:?} at {height_m} m");
+        }
+        height_m -= out.velocity_setpoint_ned_m_s.z * DT_S;
+    }
+    assert!(
+        above >= 2 && within >= 3,
+        "{above} steps above, {within} within"
+    );
 }
 
 /// Searching with no fix, the same lean: the vehicle moves upwind until its camera sees
@@ -299,9 +360,11 @@ fn the_wind_shear_feed_forward_leans_less_only_while_descending() {
 /// ends (worked out by hand).
 #[test]
 fn the_wind_shear_is_never_predicted_below_the_pad() {
+    // The height is set, not flown: no touchdown band from the descent's rate.
     let config = LandingConfig {
         wind_shear_roughness_m: 0.05,
         final_descent_speed_m_s: 2.0,
+        touchdown_correction_lead_s: 0.0,
         ..LandingConfig::default()
     };
     let height_m = 0.4;
