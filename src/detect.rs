@@ -3,12 +3,12 @@
 
 use crate::check::EXIT_INVALID_CONFIG;
 use crate::frames::load_gray;
-use algorithms::vision::aruco::{ArucoConfig, ArucoDetector};
+use algorithms::vision::aruco::{ArucoConfig, ArucoDetector, ArucoError};
 use algorithms::vision::landing_marker::{
-    ArucoSeen, LandingMarkerConfig, LandingMarkerDetector, LandingMarkerLayout,
+    ArucoSeen, LandingMarkerConfig, LandingMarkerDetector, LandingMarkerError, LandingMarkerLayout,
     LandingMarkerObservation, NfoldSeen,
 };
-use algorithms::vision::nfold::NfoldDetector;
+use algorithms::vision::nfold::{NfoldConfigError, NfoldDetector};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -71,22 +71,54 @@ pub fn run(images: &[PathBuf], layout: Option<&Path>, json: bool) -> ExitCode {
     }
 }
 
-fn detectors(layout_path: Option<&Path>) -> Result<Detectors, String> {
+/// Why the detectors could not be set up from the layout.
+#[derive(Debug, thiserror::Error)]
+enum LayoutError {
+    #[error("{path}: cannot read the layout: {source}")]
+    Read {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}:{line}:{column}: {}", source.message())]
+    Parse {
+        path: PathBuf,
+        line: usize,
+        column: usize,
+        #[source]
+        source: Box<toml::de::Error>,
+    },
+    #[error(transparent)]
+    Marker(#[from] LandingMarkerError),
+    #[error("the n-fold detector: {0}")]
+    Nfold(#[from] NfoldConfigError),
+    #[error("the ArUco detector: {0}")]
+    Aruco(#[from] ArucoError),
+}
+
+fn detectors(layout_path: Option<&Path>) -> Result<Detectors, LayoutError> {
     let layout = match layout_path {
         None => LandingMarkerLayout::default(),
         Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| format!("{}: cannot read the layout: {e}", path.display()))?;
-            toml::from_str(&text).map_err(|e| {
-                let (line, column) = e
+            let text = std::fs::read_to_string(path).map_err(|source| LayoutError::Read {
+                path: path.to_path_buf(),
+                source,
+            })?;
+            toml::from_str(&text).map_err(|source| {
+                let (line, column) = source
                     .span()
                     .map(|s| runtime::diagnostic::line_col(&text, s.start))
                     .unwrap_or((1, 1));
-                format!("{}:{line}:{column}: {}", path.display(), e.message())
+                LayoutError::Parse {
+                    path: path.to_path_buf(),
+                    line,
+                    column,
+                    source: Box::new(source),
+                }
             })?
         }
     };
-    let dictionary = layout.validate().map_err(|e| e.to_string())?;
+    let dictionary = layout.validate()?;
     let mut config = LandingMarkerConfig {
         layout,
         ..LandingMarkerConfig::default()
@@ -94,9 +126,9 @@ fn detectors(layout_path: Option<&Path>) -> Result<Detectors, String> {
     config.nfold.order = config.layout.nfold_order;
     config.nfold.oriented = config.layout.nfold_oriented;
     Ok(Detectors {
-        nfold: NfoldDetector::new(config.nfold.clone()).map_err(|e| e.to_string())?,
-        aruco: ArucoDetector::new(dictionary, ArucoConfig::default()).map_err(|e| e.to_string())?,
-        landing_marker: LandingMarkerDetector::new(config).map_err(|e| e.to_string())?,
+        nfold: NfoldDetector::new(config.nfold.clone())?,
+        aruco: ArucoDetector::new(dictionary, ArucoConfig::default())?,
+        landing_marker: LandingMarkerDetector::new(config)?,
     })
 }
 
@@ -120,22 +152,17 @@ fn detect_file(detectors: &mut Detectors, path: &Path) -> FileReport {
     let view = frame.view();
     report.width_px = Some(view.width());
     report.height_px = Some(view.height());
-    let outcome = (|| -> Result<(), String> {
-        report.nfold = detectors
-            .nfold
-            .detect(&view)
-            .map_err(|e| e.to_string())?
-            .map(|d| NfoldSeen {
-                centre_px: [d.u_px, d.v_px],
-                orientation_rad: d.orientation_rad,
-                orientation_resolved: d.orientation_resolved,
-                quality: d.quality,
-                kernel_size_px: d.kernel_size_px,
-            });
+    let outcome = (|| -> Result<(), Box<dyn std::error::Error>> {
+        report.nfold = detectors.nfold.detect(&view)?.map(|d| NfoldSeen {
+            centre_px: [d.u_px, d.v_px],
+            orientation_rad: d.orientation_rad,
+            orientation_resolved: d.orientation_resolved,
+            quality: d.quality,
+            kernel_size_px: d.kernel_size_px,
+        });
         report.aruco = detectors
             .aruco
-            .detect(&view)
-            .map_err(|e| e.to_string())?
+            .detect(&view)?
             .into_iter()
             .map(|m| ArucoSeen {
                 id: m.id,
@@ -143,10 +170,7 @@ fn detect_file(detectors: &mut Detectors, path: &Path) -> FileReport {
                 hamming_distance: m.hamming_distance,
             })
             .collect();
-        report.landing_marker = detectors
-            .landing_marker
-            .detect(&view, None)
-            .map_err(|e| e.to_string())?;
+        report.landing_marker = detectors.landing_marker.detect(&view, None)?;
         Ok(())
     })();
     if let Err(message) = outcome {

@@ -118,13 +118,32 @@ impl<E: Into<Box<dyn std::error::Error>>> From<E> for Failure {
     }
 }
 
-/// The link's signing key file could not be read.
+/// The link's signing key file could not be read, or does not hold a key.
 #[derive(Debug, thiserror::Error)]
-#[error("{}: cannot read the signing key: {source}", path.display())]
-struct SigningKeyError {
-    path: std::path::PathBuf,
-    #[source]
-    source: std::io::Error,
+enum SigningKeyError {
+    #[error("{}: cannot read the signing key: {source}", path.display())]
+    Read {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: {source}", path.display())]
+    Format {
+        path: std::path::PathBuf,
+        #[source]
+        source: KeyFormatError,
+    },
+}
+
+/// Why a key file's bytes are not a MAVLink 2 signing key.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum KeyFormatError {
+    #[error("expected 32 raw bytes or 64 hex digits, found {0} bytes")]
+    Bytes(usize),
+    #[error("expected 32 raw bytes or 64 hex digits, found {0} characters")]
+    Characters(usize),
+    #[error("not a hex byte: {0}")]
+    Hex(#[source] std::num::ParseIntError),
 }
 
 fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
@@ -316,37 +335,29 @@ fn signing_key(loaded: &LoadedConfig) -> Result<Option<[u8; 32]>, Failure> {
         return Ok(None);
     };
     let path = loaded.base_dir().join(file);
-    let bytes = std::fs::read(&path).map_err(|source| SigningKeyError {
+    let bytes = std::fs::read(&path).map_err(|source| SigningKeyError::Read {
         path: path.clone(),
         source,
     })?;
-    parse_signing_key(&bytes)
-        .map(Some)
-        .map_err(|why| format!("{}: {why}", path.display()).into())
+    let key =
+        parse_signing_key(&bytes).map_err(|source| SigningKeyError::Format { path, source })?;
+    Ok(Some(key))
 }
 
 /// A MAVLink 2 signing key from a key file's bytes.
-pub fn parse_signing_key(bytes: &[u8]) -> Result<[u8; 32], String> {
+pub fn parse_signing_key(bytes: &[u8]) -> Result<[u8; 32], KeyFormatError> {
     if let Ok(raw) = <[u8; 32]>::try_from(bytes) {
         return Ok(raw);
     }
     let text = std::str::from_utf8(bytes)
-        .map_err(|_| {
-            format!(
-                "expected 32 raw bytes or 64 hex digits, found {} bytes",
-                bytes.len()
-            )
-        })?
+        .map_err(|_| KeyFormatError::Bytes(bytes.len()))?
         .trim();
     if text.len() != 64 || !text.bytes().all(|b| b.is_ascii_hexdigit()) {
-        return Err(format!(
-            "expected 32 raw bytes or 64 hex digits, found {} characters",
-            text.len()
-        ));
+        return Err(KeyFormatError::Characters(text.len()));
     }
     let mut key = [0u8; 32];
     for (i, byte) in key.iter_mut().enumerate() {
-        *byte = u8::from_str_radix(&text[2 * i..2 * i + 2], 16).map_err(|e| e.to_string())?;
+        *byte = u8::from_str_radix(&text[2 * i..2 * i + 2], 16).map_err(KeyFormatError::Hex)?;
     }
     Ok(key)
 }
@@ -395,7 +406,7 @@ fn summary(log: &MissionLog, stats: &[TaskStats], wall_s: f64) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_signing_key;
+    use super::{parse_signing_key, KeyFormatError};
 
     #[test]
     fn a_signing_key_is_32_raw_bytes_or_64_hex_digits() {
@@ -409,12 +420,14 @@ mod tests {
             raw
         );
         let short = parse_signing_key(b"abcd").unwrap_err();
-        assert!(short.contains("found 4 characters"), "{short}");
+        assert_eq!(short, KeyFormatError::Characters(4));
+        assert!(short.to_string().contains("found 4 characters"), "{short}");
         let not_hex = "zz".repeat(32);
-        assert!(parse_signing_key(not_hex.as_bytes())
-            .unwrap_err()
-            .contains("64 hex digits"));
+        assert_eq!(
+            parse_signing_key(not_hex.as_bytes()).unwrap_err(),
+            KeyFormatError::Characters(64)
+        );
         let binary = parse_signing_key(&[0xff; 31]).unwrap_err();
-        assert!(binary.contains("found 31 bytes"), "{binary}");
+        assert!(binary.to_string().contains("found 31 bytes"), "{binary}");
     }
 }

@@ -2,7 +2,7 @@
 //! leave-one-out error.
 
 use crate::check::{report_failure, EXIT_INVALID_CONFIG};
-use power_models::grid::{leave_one_out_profile, AxisScale, GridModel, LooReport};
+use power_models::grid::{leave_one_out_profile, AxisScale, GridModel, LooReport, ModelError};
 use power_models::profile::Profile;
 use runtime::diagnostic::{Diagnostic, FileReport};
 use serde::Serialize;
@@ -102,16 +102,37 @@ fn read_profile(path: &Path, knob_names: &[String]) -> Result<Profile, FileRepor
     parsed.map_err(|error| failure(source, Diagnostic::error(error.span, error.message)))
 }
 
-fn describe<'a>(profile: &'a Profile, args: &ModelArgs) -> Result<ModelReport<'a>, String> {
+/// Why the model could not be described or evaluated.
+#[derive(Debug, thiserror::Error)]
+enum DescribeError {
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error("--at `{pair}`: expected KNOB=VALUE, e.g. hazard.rate_fps=2")]
+    NotAPair { pair: String },
+    #[error("--at `{pair}`: the model has no knob `{knob}`; its knobs are: {}", knobs.join(", "))]
+    UnknownKnob {
+        pair: String,
+        knob: String,
+        knobs: Vec<String>,
+    },
+    #[error("--at `{pair}`: `{value}` is not a number")]
+    NotANumber { pair: String, value: String },
+    #[error("--at: knob `{knob}` is given twice")]
+    Twice { knob: String },
+    #[error("--at: give a value for every knob; missing: {}", missing.join(", "))]
+    Missing { missing: Vec<String> },
+}
+
+fn describe<'a>(profile: &'a Profile, args: &ModelArgs) -> Result<ModelReport<'a>, DescribeError> {
     let scale = args.scale.unwrap_or_default();
-    let model = GridModel::from_profile(profile, scale).map_err(|e| e.to_string())?;
+    let model = GridModel::from_profile(profile, scale)?;
     let evaluation = if args.at.is_empty() {
         None
     } else {
         Some(evaluate(&model, &args.at)?)
     };
     let leave_one_out = if args.loo {
-        Some(leave_one_out_profile(profile, scale).map_err(|e| e.to_string())?)
+        Some(leave_one_out_profile(profile, scale)?)
     } else {
         None
     };
@@ -138,44 +159,46 @@ fn describe<'a>(profile: &'a Profile, args: &ModelArgs) -> Result<ModelReport<'a
 }
 
 /// Evaluates the model at `knob=value` pairs, which must name every knob once.
-fn evaluate(model: &GridModel, pairs: &[String]) -> Result<PointEvaluation, String> {
+fn evaluate(model: &GridModel, pairs: &[String]) -> Result<PointEvaluation, DescribeError> {
     let names = model.knob_names();
     let mut point = vec![None; names.len()];
     for pair in pairs {
         let (name, value) = pair
             .split_once('=')
-            .ok_or_else(|| format!("--at `{pair}`: expected KNOB=VALUE, e.g. hazard.rate_fps=2"))?;
+            .ok_or_else(|| DescribeError::NotAPair { pair: pair.clone() })?;
         let index = names.iter().position(|n| n == name.trim()).ok_or_else(|| {
-            format!(
-                "--at `{pair}`: the model has no knob `{}`; its knobs are: {}",
-                name.trim(),
-                names.join(", ")
-            )
+            DescribeError::UnknownKnob {
+                pair: pair.clone(),
+                knob: name.trim().to_string(),
+                knobs: names.to_vec(),
+            }
         })?;
         let value: f64 = value
             .trim()
             .parse()
             .ok()
             .filter(|v: &f64| v.is_finite())
-            .ok_or_else(|| format!("--at `{pair}`: `{}` is not a number", value.trim()))?;
+            .ok_or_else(|| DescribeError::NotANumber {
+                pair: pair.clone(),
+                value: value.trim().to_string(),
+            })?;
         if point[index].replace(value).is_some() {
-            return Err(format!("--at: knob `{name}` is given twice"));
+            return Err(DescribeError::Twice {
+                knob: name.to_string(),
+            });
         }
     }
-    let missing: Vec<&str> = names
+    let missing: Vec<String> = names
         .iter()
         .zip(&point)
         .filter(|(_, v)| v.is_none())
-        .map(|(n, _)| n.as_str())
+        .map(|(n, _)| n.clone())
         .collect();
     if !missing.is_empty() {
-        return Err(format!(
-            "--at: give a value for every knob; missing: {}",
-            missing.join(", ")
-        ));
+        return Err(DescribeError::Missing { missing });
     }
     let point: Vec<f64> = point.into_iter().flatten().collect();
-    let evaluation = model.try_eval(&point).map_err(|e| e.to_string())?;
+    let evaluation = model.try_eval(&point)?;
     Ok(PointEvaluation {
         knobs: names.iter().cloned().zip(point.iter().copied()).collect(),
         power_w: evaluation.value,

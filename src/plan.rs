@@ -2,7 +2,7 @@
 //! phase, predicted power and energy, margin and endurance — as a table, JSON or an SVG plot.
 
 use crate::check::report_failure;
-use crate::plot::{frontier_svg, FrontierPlot};
+use crate::plot::{frontier_svg, FrontierPlot, PlotError};
 use power_models::planner::{pareto_frontier, solve, PhasePlan, Plan};
 use runtime::catalog::PluginCatalog;
 use runtime::config::{load_file, Knob, MissionConfig};
@@ -55,8 +55,8 @@ pub fn run(args: &PlanArgs) -> ExitCode {
         }
     };
     if let Some(svg_path) = &args.svg {
-        if let Err(message) = write_svg(&report, &model.config, svg_path) {
-            eprintln!("error: {message}");
+        if let Err(error) = write_frontier_svg(&report, &model.config, svg_path) {
+            eprintln!("error: {error}");
             return ExitCode::FAILURE;
         }
     }
@@ -327,7 +327,11 @@ fn human_report(report: &PlanReport, config: &MissionConfig, file: &Path) -> Str
     out
 }
 
-fn write_svg(report: &PlanReport, config: &MissionConfig, path: &Path) -> Result<(), String> {
+fn write_frontier_svg(
+    report: &PlanReport,
+    config: &MissionConfig,
+    path: &Path,
+) -> Result<(), PlotError> {
     let frontier: Vec<(f64, f64)> = report
         .pareto_frontier
         .iter()
@@ -345,5 +349,5 @@ fn write_svg(report: &PlanReport, config: &MissionConfig, path: &Path) -> Result
             .feasible
             .then_some((report.energy_wh, report.utility)),
     })?;
-    std::fs::write(path, svg).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    crate::plot::write_text(path, &svg)
 }

@@ -2,6 +2,46 @@
 //! chosen plan, drawn with plotters.
 
 use plotters::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// Why a plot could not be drawn or written.
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    #[error("cannot draw the plot: {0}")]
+    Draw(#[from] DrawingAreaErrorKind<std::io::Error>),
+    #[error("the run recorded no track")]
+    NoTrack,
+    #[error("cannot write {}: {source}", path.display())]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+pub(crate) type SvgArea<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
+
+/// Draws one SVG document of `size_px` (width, height).
+pub(crate) fn render_svg(
+    size_px: (u32, u32),
+    draw: impl FnOnce(&SvgArea) -> Result<(), DrawingAreaErrorKind<std::io::Error>>,
+) -> Result<String, PlotError> {
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, size_px).into_drawing_area();
+        draw(&root)?;
+        root.present()?;
+    }
+    Ok(svg)
+}
+
+/// Writes a drawn document (or its data) to `path`.
+pub fn write_text(path: &Path, text: &str) -> Result<(), PlotError> {
+    std::fs::write(path, text).map_err(|source| PlotError::Write {
+        path: path.to_path_buf(),
+        source,
+    })
+}
 
 pub struct FrontierPlot<'a> {
     pub title: &'a str,
@@ -13,15 +53,8 @@ pub struct FrontierPlot<'a> {
 }
 
 /// Renders the plot to an SVG document.
-pub fn frontier_svg(plot: &FrontierPlot) -> Result<String, String> {
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (900, 600)).into_drawing_area();
-        draw(&root, plot).map_err(|error| format!("cannot draw the plot: {error}"))?;
-        root.present()
-            .map_err(|error| format!("cannot draw the plot: {error}"))?;
-    }
-    Ok(svg)
+pub fn frontier_svg(plot: &FrontierPlot) -> Result<String, PlotError> {
+    render_svg((900, 600), |root| draw(root, plot))
 }
 
 fn draw<DB: DrawingBackend>(
@@ -87,18 +120,11 @@ fn draw<DB: DrawingBackend>(
 
 /// The simulated mission: vehicle and tractor tracks (north against east) on the left, the
 /// battery's state of charge over time on the right.
-pub fn mission_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, String> {
+pub fn mission_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, PlotError> {
     if outcome.track.is_empty() {
-        return Err("the run recorded no track".into());
+        return Err(PlotError::NoTrack);
     }
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (1200, 560)).into_drawing_area();
-        draw_mission(&root, outcome).map_err(|error| format!("cannot draw the plot: {error}"))?;
-        root.present()
-            .map_err(|error| format!("cannot draw the plot: {error}"))?;
-    }
-    Ok(svg)
+    render_svg((1200, 560), |root| draw_mission(root, outcome))
 }
 
 fn draw_mission<DB: DrawingBackend>(
@@ -173,18 +199,11 @@ fn draw_mission<DB: DrawingBackend>(
 
 /// The simulated mission's QoS levels and battery over time: the battery's state of charge
 /// above, every task's level (0 = its lowest) below, as the governor set them.
-pub fn qos_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, String> {
+pub fn qos_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, PlotError> {
     if outcome.track.is_empty() || outcome.qos_track.is_empty() {
-        return Err("the run recorded no track".into());
+        return Err(PlotError::NoTrack);
     }
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (1000, 640)).into_drawing_area();
-        draw_qos(&root, outcome).map_err(|error| format!("cannot draw the plot: {error}"))?;
-        root.present()
-            .map_err(|error| format!("cannot draw the plot: {error}"))?;
-    }
-    Ok(svg)
+    render_svg((1000, 640), |root| draw_qos(root, outcome))
 }
 
 fn draw_qos<DB: DrawingBackend>(

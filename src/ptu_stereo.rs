@@ -10,7 +10,7 @@ use algorithms::stereo::error_analysis::{
     error_field, reproduce_table, seed_figures, ColumnComparison, ErrorField, PaperTable,
     TableModel, TABLE_1, TABLE_2, TABLE_MISPRINTS, TABLE_PIXEL_PITCH_UM,
 };
-use algorithms::stereo::triangulation::CameraIntrinsics;
+use algorithms::stereo::triangulation::{CameraIntrinsics, TriangulationError};
 use plotters::prelude::*;
 use runtime::plugins::ground_stereo::fly_scripted_approach;
 use serde_json::json;
@@ -19,6 +19,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use crate::check::EXIT_INVALID_CONFIG;
+use crate::plot::{render_svg, write_text, PlotError};
 
 /// `qosrt ptu-stereo`'s arguments.
 #[derive(clap::Args)]
@@ -492,21 +493,43 @@ fn approach_text(
     out
 }
 
+/// Why the figures could not be written.
+#[derive(Debug, thiserror::Error)]
+enum FigureError {
+    #[error("cannot create {}: {source}", dir.display())]
+    CreateDir {
+        dir: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("figure {figure}: {source}")]
+    Field {
+        figure: u8,
+        #[source]
+        source: TriangulationError,
+    },
+    #[error(transparent)]
+    Plot(#[from] PlotError),
+}
+
 /// Writes `fig8.svg`, `fig8.csv`, … into `dir`.
-fn write_figures(dir: &Path, glide_deg: f64) -> Result<Vec<PathBuf>, String> {
-    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+fn write_figures(dir: &Path, glide_deg: f64) -> Result<Vec<PathBuf>, FigureError> {
+    std::fs::create_dir_all(dir).map_err(|source| FigureError::CreateDir {
+        dir: dir.to_path_buf(),
+        source,
+    })?;
     let mut written = Vec::new();
     for mut spec in seed_figures() {
         spec.glide_angle_rad = glide_deg.to_radians();
-        let field = error_field(&spec).map_err(|e| format!("figure {}: {e}", spec.figure))?;
-        let svg = field_svg(&field)?;
+        let field = error_field(&spec).map_err(|source| FigureError::Field {
+            figure: spec.figure,
+            source,
+        })?;
         let svg_path = dir.join(format!("fig{}.svg", spec.figure));
-        std::fs::write(&svg_path, svg)
-            .map_err(|e| format!("cannot write {}: {e}", svg_path.display()))?;
+        write_text(&svg_path, &field_svg(&field)?)?;
         written.push(svg_path);
         let csv_path = dir.join(format!("fig{}.csv", spec.figure));
-        std::fs::write(&csv_path, field_csv(&field))
-            .map_err(|e| format!("cannot write {}: {e}", csv_path.display()))?;
+        write_text(&csv_path, &field_csv(&field))?;
         written.push(csv_path);
     }
     Ok(written)
@@ -558,15 +581,8 @@ fn ramp(t: f64) -> RGBColor {
 
 /// Six heat maps of |error| (log colour scale, per panel): the 1 mrad disturbance of the
 /// tables' model and the 1σ of N(0, 1 mrad), on X, Y and Z.
-fn field_svg(field: &ErrorField) -> Result<String, String> {
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (1500, 1000)).into_drawing_area();
-        draw_field(&root, field).map_err(|e| format!("cannot draw the plot: {e}"))?;
-        root.present()
-            .map_err(|e| format!("cannot draw the plot: {e}"))?;
-    }
-    Ok(svg)
+fn field_svg(field: &ErrorField) -> Result<String, PlotError> {
+    render_svg((1500, 1000), |root| draw_field(root, field))
 }
 
 fn draw_field<DB: DrawingBackend>(

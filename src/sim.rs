@@ -281,10 +281,10 @@ pub fn run(args: &SimArgs) -> ExitCode {
                 (qos_path, crate::plot::qos_svg(&outcome)),
             ];
             for (path, plot) in plots {
-                match plot.and_then(|doc| std::fs::write(&path, doc).map_err(|e| e.to_string())) {
+                match plot.and_then(|doc| crate::plot::write_text(&path, &doc)) {
                     Ok(()) => eprintln!("wrote {}", path.display()),
                     Err(error) => {
-                        eprintln!("error: cannot write {}: {error}", path.display());
+                        eprintln!("error: {error}");
                         return ExitCode::FAILURE;
                     }
                 }

@@ -69,14 +69,26 @@ fn main() -> ExitCode {
     let args = Args::parse();
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(message) => {
-            eprintln!("hazard-train: {message}");
+        Err(error) => {
+            eprintln!("hazard-train: {error}");
             ExitCode::FAILURE
         }
     }
 }
 
-fn run(args: &Args) -> Result<(), String> {
+/// A file the tool could not write or create, with the I/O error.
+#[derive(Debug, thiserror::Error)]
+#[error("{action} {}: {source}", path.display())]
+struct FileError {
+    action: &'static str,
+    path: std::path::PathBuf,
+    #[source]
+    source: std::io::Error,
+}
+
+type TrainResult<T> = Result<T, Box<dyn std::error::Error>>;
+
+fn run(args: &Args) -> TrainResult<()> {
     let started = Instant::now();
     let threads = args.threads.unwrap_or_else(|| {
         std::thread::available_parallelism()
@@ -106,16 +118,14 @@ fn run(args: &Args) -> Result<(), String> {
         args.out.display(),
         args.eval_frames
     );
-    let detector = OnnxDetector::load(&args.out, INPUT_WIDTH_PX, INPUT_HEIGHT_PX)
-        .map_err(|e| e.to_string())?;
+    let detector = OnnxDetector::load(&args.out, INPUT_WIDTH_PX, INPUT_HEIGHT_PX)?;
     let eval_started = Instant::now();
     let evaluation = evaluate(
         &detector,
         EVAL_SEED_BASE..EVAL_SEED_BASE + args.eval_frames,
         &thresholds,
         threads,
-    )
-    .map_err(|e| e.to_string())?;
+    )?;
     println!(
         "evaluated in {:.1} s (confidence ≥ {}, NMS IoU {}, a match = same class and IoU ≥ {})",
         eval_started.elapsed().as_secs_f64(),
@@ -160,9 +170,12 @@ fn run(args: &Args) -> Result<(), String> {
             "frames_6_to_9_m": metrics_json(evaluation.typical_altitude_frames, &evaluation.typical_altitude, &class_names),
         },
     });
-    let text = serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?;
-    std::fs::write(&json_path, text + "\n")
-        .map_err(|e| format!("writing {}: {e}", json_path.display()))?;
+    let text = serde_json::to_string_pretty(&report)?;
+    std::fs::write(&json_path, text + "\n").map_err(|source| FileError {
+        action: "writing",
+        path: json_path.clone(),
+        source,
+    })?;
     println!(
         "wrote {} ({model_bytes} bytes) and {}; {:.1} s in all",
         args.out.display(),
@@ -178,7 +191,7 @@ fn train_and_export(
     threads: usize,
     class_names: &[&str],
     started: Instant,
-) -> Result<serde_json::Value, String> {
+) -> TrainResult<serde_json::Value> {
     let device = Device::Cpu;
     println!(
         "rendering {} training frames on {threads} threads…",
@@ -187,8 +200,7 @@ fn train_and_export(
     let render_started = Instant::now();
     let samples = render_samples(0..args.train_frames, threads, &|done| {
         println!("  {done} frames");
-    })
-    .map_err(|e| e.to_string())?;
+    })?;
     let labels: usize = samples.iter().map(|s| s.boxes.len()).sum();
     println!(
         "rendered {} frames with {labels} labels in {:.1} s",
@@ -196,8 +208,7 @@ fn train_and_export(
         render_started.elapsed().as_secs_f64()
     );
 
-    let net =
-        HazardNet::new(NetConfig::standard(), args.seed, &device).map_err(|e| e.to_string())?;
+    let net = HazardNet::new(NetConfig::standard(), args.seed, &device)?;
     let config = TrainConfig {
         epochs: args.epochs,
         batch_size: args.batch_size,
@@ -234,8 +245,7 @@ fn train_and_export(
             r.learning_rate,
             r.seconds
         );
-    })
-    .map_err(|e| e.to_string())?;
+    })?;
     let train_s = train_started.elapsed().as_secs_f64();
     drop(samples);
 
@@ -243,13 +253,15 @@ fn train_and_export(
         class_names,
         description: "qosrt hazard detector (person, animal, vehicle) trained on simulator frames by hazard_train",
     };
-    let model = onnx_export::export(&net, INPUT_WIDTH_PX, INPUT_HEIGHT_PX, &info)
-        .map_err(|e| e.to_string())?;
+    let model = onnx_export::export(&net, INPUT_WIDTH_PX, INPUT_HEIGHT_PX, &info)?;
     if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .map_err(|e| format!("creating {}: {e}", parent.display()))?;
+        std::fs::create_dir_all(parent).map_err(|source| FileError {
+            action: "creating",
+            path: parent.to_path_buf(),
+            source,
+        })?;
     }
-    let bytes = onnx_export::write(&model, &args.out).map_err(|e| e.to_string())?;
+    let bytes = onnx_export::write(&model, &args.out)?;
     println!(
         "trained in {train_s:.0} s; wrote {} ({bytes} bytes)",
         args.out.display()

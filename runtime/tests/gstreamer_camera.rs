@@ -217,9 +217,10 @@ fn frames_of_the_wrong_size_are_malformed_and_named() {
         |_, result| match result {
             Err(CameraSourceError::Malformed {
                 frame_index,
-                reason,
+                problem,
                 ..
             }) => {
+                let reason = problem.to_string();
                 assert_eq!(frame_index, 0);
                 assert!(
                     reason.contains("30×24") && reason.contains("640×480"),

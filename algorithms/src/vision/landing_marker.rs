@@ -10,9 +10,11 @@
 //! an image of the pad seen from above with its top forward (the renderer's patch u and v axes
 //! scaled to metres).
 
-use super::aruco::{ArucoConfig, ArucoDetector, ArucoError, ArucoMarker, Dictionary, PixelRect};
+use super::aruco::{
+    ArucoConfig, ArucoDetector, ArucoError, ArucoMarker, Dictionary, DictionaryError, PixelRect,
+};
 use super::image::ImageView;
-use super::nfold::{NfoldConfig, NfoldDetection, NfoldDetector, NfoldError, Roi};
+use super::nfold::{NfoldConfig, NfoldConfigError, NfoldDetection, NfoldDetector, NfoldError, Roi};
 use super::render::{Patch, RenderError, Texture};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -22,6 +24,10 @@ use thiserror::Error;
 pub enum LandingMarkerError {
     #[error("landing-marker layout: {0}")]
     Layout(String),
+    #[error("landing-marker layout: {0}")]
+    Dictionary(#[source] DictionaryError),
+    #[error("landing-marker layout: the n-fold detector: {0}")]
+    NfoldConfig(#[source] NfoldConfigError),
     #[error(transparent)]
     Nfold(#[from] NfoldError),
     #[error(transparent)]
@@ -87,8 +93,8 @@ impl LandingMarkerLayout {
     /// Checks sizes, ids and that no part overlaps another or leaves the pad.
     pub fn validate(&self) -> Result<Dictionary, LandingMarkerError> {
         let bad = |message: String| Err(LandingMarkerError::Layout(message));
-        let dictionary = Dictionary::by_name(&self.dictionary)
-            .map_err(|error| LandingMarkerError::Layout(error.to_string()))?;
+        let dictionary =
+            Dictionary::by_name(&self.dictionary).map_err(LandingMarkerError::Dictionary)?;
         if !(self.pad_size_m.is_finite() && self.pad_size_m > 0.0) {
             return bad(format!("pad_size_m must be > 0, got {}", self.pad_size_m));
         }
@@ -282,8 +288,7 @@ impl LandingMarkerDetector {
                 "the n-fold detector's order and orientation must match the layout's".into(),
             ));
         }
-        let nfold = NfoldDetector::new(config.nfold)
-            .map_err(|error| LandingMarkerError::Layout(error.to_string()))?;
+        let nfold = NfoldDetector::new(config.nfold).map_err(LandingMarkerError::NfoldConfig)?;
         Ok(Self {
             layout: config.layout,
             nfold,
@@ -723,7 +728,20 @@ mod tests {
             dictionary: "DICT_9X9".into(),
             ..LandingMarkerLayout::default()
         };
-        assert!(dictionary.validate().is_err());
+        // The dictionary's own error is kept as the cause.
+        let Err(error @ LandingMarkerError::Dictionary(_)) = dictionary.validate() else {
+            panic!("an unknown dictionary must be named as such");
+        };
+        let cause = std::error::Error::source(&error).expect("the dictionary's error");
+        assert!(cause.to_string().contains("DICT_9X9"), "{cause}");
+        let mut order = LandingMarkerConfig::default();
+        order.layout.nfold_order = 1;
+        order.nfold.order = 1;
+        let Err(LandingMarkerError::NfoldConfig(NfoldConfigError::Order(1))) =
+            LandingMarkerDetector::new(order)
+        else {
+            panic!("an n-fold order of 1 must be refused by the n-fold detector");
+        };
     }
 
     #[test]

@@ -76,9 +76,9 @@ impl ImageFolderSource {
                 });
             }
         }
-        let folder_error = |error: std::io::Error| CameraSourceError::Folder {
+        let folder_error = |source: std::io::Error| CameraSourceError::Folder {
             folder: config.folder.clone(),
-            reason: error.to_string(),
+            source,
         };
         let mut files = Vec::new();
         for entry in std::fs::read_dir(&config.folder).map_err(folder_error)? {
@@ -174,23 +174,23 @@ impl CameraSource for ImageFolderSource {
 
 /// Reads an image file as 8-bit grayscale.
 pub fn load_gray(path: &Path) -> Result<GrayImage, CameraSourceError> {
-    let unreadable = |reason: String| CameraSourceError::Unreadable {
+    let unreadable = |source: std::io::Error| CameraSourceError::Unreadable {
         path: path.to_path_buf(),
-        reason,
+        source,
     };
-    let format = |reason: String| CameraSourceError::Format {
+    let format = |source: super::BoxedError| CameraSourceError::Format {
         path: path.to_path_buf(),
-        reason,
+        source,
     };
     let decoded = image::ImageReader::open(path)
-        .map_err(|e| unreadable(e.to_string()))?
+        .map_err(unreadable)?
         .with_guessed_format()
-        .map_err(|e| unreadable(e.to_string()))?
+        .map_err(unreadable)?
         .decode()
-        .map_err(|e| format(e.to_string()))?;
+        .map_err(|e| format(e.into()))?;
     let luma = decoded.into_luma8();
     let (width, height) = (luma.width() as usize, luma.height() as usize);
-    GrayImage::from_vec(width, height, luma.into_raw()).map_err(|e| format(e.to_string()))
+    GrayImage::from_vec(width, height, luma.into_raw()).map_err(|e| format(e.into()))
 }
 
 #[cfg(test)]

@@ -74,7 +74,7 @@ impl GstreamerConfig {
 /// One sample as the streaming thread left it.
 struct Arrived {
     frame_index: u64,
-    image: Result<GrayImage, String>,
+    image: Result<GrayImage, SampleError>,
     /// When it was captured, on this host's monotonic clock.
     captured_at: Instant,
 }
@@ -262,26 +262,25 @@ impl CameraSource for GstreamerSource {
         };
         self.last_frame_at = Some(Instant::now());
         self.stalled = false;
-        let malformed = |stats: &mut CameraStats, reason: String| {
+        let malformed = |stats: &mut CameraStats, problem: SampleError| {
             stats.malformed += 1;
             CameraSourceError::Malformed {
                 source_name: self.name.clone(),
                 frame_index: arrived.frame_index,
-                reason,
+                problem: Box::new(problem),
             }
         };
         let image = match arrived.image {
             Ok(image) => image,
-            Err(reason) => return Err(malformed(&mut self.stats, reason)),
+            Err(problem) => return Err(malformed(&mut self.stats, problem)),
         };
         let found = (image.width(), image.height());
         let expected = *self.expected_size_px.get_or_insert(found);
         if found != expected {
-            let reason = format!(
-                "{}×{} pixels, the camera's are {}×{}",
-                found.0, found.1, expected.0, expected.1
-            );
-            return Err(malformed(&mut self.stats, reason));
+            return Err(malformed(
+                &mut self.stats,
+                SampleError::WrongSize { found, expected },
+            ));
         }
         let age_s = arrived.captured_at.elapsed().as_secs_f64();
         if age_s > self.config.late_after_s {
@@ -339,35 +338,79 @@ fn sample_age(sink: &gst_app::AppSink, sample: &gst::Sample) -> Duration {
     }
 }
 
+/// Why a sample the sink delivered is not a grey frame the camera can use.
+#[derive(Debug, thiserror::Error)]
+enum SampleError {
+    #[error("the sample has no caps")]
+    NoCaps,
+    #[error("the caps do not describe raw video")]
+    Caps(#[source] gst::glib::BoolError),
+    #[error("format {0:?}, expected GRAY8")]
+    Format(gst_video::VideoFormat),
+    #[error("the sample has no buffer")]
+    NoBuffer,
+    #[error("the buffer does not hold a {width}×{height} frame")]
+    Map {
+        width: u32,
+        height: u32,
+        #[source]
+        source: gst::glib::BoolError,
+    },
+    #[error("the plane's stride {0} is negative")]
+    Stride(i32),
+    #[error("{bytes} bytes with stride {stride} cannot hold {width}×{height} pixels")]
+    Short {
+        bytes: usize,
+        stride: usize,
+        width: usize,
+        height: usize,
+    },
+    #[error(transparent)]
+    Image(#[from] algorithms::vision::image::FrameError),
+    #[error("{}×{} pixels, the camera's are {}×{}", found.0, found.1, expected.0, expected.1)]
+    WrongSize {
+        found: (usize, usize),
+        expected: (usize, usize),
+    },
+}
+
 /// The sample's grey plane, row by row (GStreamer pads rows to 4 bytes).
-fn gray_image(sample: &gst::Sample) -> Result<GrayImage, String> {
-    let caps = sample.caps().ok_or("the sample has no caps")?;
-    let info = gst_video::VideoInfo::from_caps(caps).map_err(|e| e.to_string())?;
+fn gray_image(sample: &gst::Sample) -> Result<GrayImage, SampleError> {
+    let caps = sample.caps().ok_or(SampleError::NoCaps)?;
+    let info = gst_video::VideoInfo::from_caps(caps).map_err(SampleError::Caps)?;
     if info.format() != gst_video::VideoFormat::Gray8 {
-        return Err(format!("format {:?}, expected GRAY8", info.format()));
+        return Err(SampleError::Format(info.format()));
     }
-    let buffer = sample.buffer().ok_or("the sample has no buffer")?;
-    let frame = gst_video::VideoFrameRef::from_buffer_ref_readable(buffer, &info).map_err(|e| {
-        format!(
-            "the buffer does not hold a {}×{} frame: {e}",
-            info.width(),
-            info.height()
-        )
-    })?;
+    let buffer = sample.buffer().ok_or(SampleError::NoBuffer)?;
+    let frame =
+        gst_video::VideoFrameRef::from_buffer_ref_readable(buffer, &info).map_err(|source| {
+            SampleError::Map {
+                width: info.width(),
+                height: info.height(),
+                source,
+            }
+        })?;
     let (width, height) = (info.width() as usize, info.height() as usize);
-    let stride = usize::try_from(frame.plane_stride()[0]).map_err(|e| e.to_string())?;
-    let plane = frame.plane_data(0).map_err(|e| e.to_string())?;
+    let stride_bytes = frame.plane_stride()[0];
+    let stride = usize::try_from(stride_bytes).map_err(|_| SampleError::Stride(stride_bytes))?;
+    let plane = frame.plane_data(0).map_err(|source| SampleError::Map {
+        width: info.width(),
+        height: info.height(),
+        source,
+    })?;
     if width == 0 || height == 0 || stride < width || plane.len() < stride * (height - 1) + width {
-        return Err(format!(
-            "{} bytes with stride {stride} cannot hold {width}×{height} pixels",
-            plane.len()
-        ));
+        return Err(SampleError::Short {
+            bytes: plane.len(),
+            stride,
+            width,
+            height,
+        });
     }
     let mut pixels = Vec::with_capacity(width * height);
     for row in plane.chunks(stride).take(height) {
         pixels.extend_from_slice(&row[..width]);
     }
-    GrayImage::from_vec(width, height, pixels).map_err(|e| e.to_string())
+    Ok(GrayImage::from_vec(width, height, pixels)?)
 }
 
 /// The first error waiting on the bus, described.

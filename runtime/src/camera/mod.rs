@@ -31,13 +31,25 @@ use thiserror::Error;
 
 use crate::topics::CameraFrame;
 
+/// The underlying error of a frame that could not be decoded: the image crate's, the frame
+/// layout's, or a GStreamer sample's, kept whole so a report names what failed.
+pub type BoxedError = Box<dyn std::error::Error + Send + Sync>;
+
 /// Why a source gave no frame this time.
-#[derive(Debug, Clone, PartialEq, Error)]
+#[derive(Debug, Error)]
 pub enum CameraSourceError {
-    #[error("{path}: cannot read: {reason}")]
-    Unreadable { path: PathBuf, reason: String },
-    #[error("{path}: not a readable PNG, JPEG or PGM image: {reason}")]
-    Format { path: PathBuf, reason: String },
+    #[error("{path}: cannot read: {source}")]
+    Unreadable {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: not a readable PNG, JPEG or PGM image: {source}")]
+    Format {
+        path: PathBuf,
+        #[source]
+        source: BoxedError,
+    },
     #[error("{path}: the frame is {found_width}×{found_height} pixels, the camera's are {expected_width}×{expected_height}")]
     WrongSize {
         path: PathBuf,
@@ -48,8 +60,12 @@ pub enum CameraSourceError {
     },
     #[error("{folder}: no PNG, JPEG or PGM files to play")]
     EmptyFolder { folder: PathBuf },
-    #[error("{folder}: cannot list the folder: {reason}")]
-    Folder { folder: PathBuf, reason: String },
+    #[error("{folder}: cannot list the folder: {source}")]
+    Folder {
+        folder: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("camera source `{source_name}` has no more frames")]
     Ended { source_name: String },
     #[error("camera source `{source_name}`: device error: {reason}")]
@@ -64,11 +80,12 @@ pub enum CameraSourceError {
     Pipeline { source_name: String, reason: String },
     #[error("camera source `{source_name}`: no frame for {silent_s:.1} s (stalled)")]
     Stalled { source_name: String, silent_s: f64 },
-    #[error("camera source `{source_name}`: frame {frame_index} is malformed: {reason}")]
+    #[error("camera source `{source_name}`: frame {frame_index} is malformed: {problem}")]
     Malformed {
         source_name: String,
         frame_index: u64,
-        reason: String,
+        #[source]
+        problem: BoxedError,
     },
 }
 

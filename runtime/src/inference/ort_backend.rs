@@ -12,24 +12,42 @@ use super::{
 use ort::ep::{ExecutionProvider, CUDA};
 use ort::session::Session;
 use ort::value::{Tensor, ValueType};
-use std::path::Path;
-use std::sync::OnceLock;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+
+/// Why ONNX Runtime could not be started; kept (shared) for every later task that asks.
+#[derive(Debug, Clone, thiserror::Error)]
+enum EnvironmentError {
+    #[error("cannot load {}: {source}", path.display())]
+    Load {
+        path: PathBuf,
+        #[source]
+        source: Arc<ort::LoadDynamicError>,
+    },
+    #[error("cannot start ONNX Runtime: {0}")]
+    Start(#[source] Arc<ort::Error>),
+}
 
 /// ONNX Runtime allows one environment per process; every hazard task (and restart) shares it.
-static ENVIRONMENT: OnceLock<Result<ort::environment::Environment, String>> = OnceLock::new();
+static ENVIRONMENT: OnceLock<Result<ort::environment::Environment, EnvironmentError>> =
+    OnceLock::new();
 
-fn environment(library: Option<&Path>) -> Result<&'static ort::environment::Environment, String> {
+fn environment(
+    library: Option<&Path>,
+) -> Result<&'static ort::environment::Environment, EnvironmentError> {
     ENVIRONMENT
         .get_or_init(|| {
             let builder = match library {
-                Some(path) => ort::init_from(path)
-                    .map_err(|e| format!("cannot load {}: {e}", path.display()))?,
+                Some(path) => ort::init_from(path).map_err(|source| EnvironmentError::Load {
+                    path: path.to_path_buf(),
+                    source: Arc::new(source),
+                })?,
                 None => ort::init(),
             };
             builder
                 .with_name("qosrt")
                 .build()
-                .map_err(|e| format!("cannot start ONNX Runtime: {e}"))
+                .map_err(|source| EnvironmentError::Start(Arc::new(source)))
         })
         .as_ref()
         .map_err(Clone::clone)
@@ -59,7 +77,7 @@ impl OrtBackend {
             model: model_name.clone(),
             message,
         };
-        let environment = environment(library).map_err(unavailable)?;
+        let environment = environment(library).map_err(|e| unavailable(e.to_string()))?;
         let bytes = source.read()?;
         let mut builder = Session::builder(environment)
             .map_err(|e| unavailable(format!("cannot create a session: {e}")))?;

@@ -100,16 +100,27 @@ fn channel_files(dir: &Path) -> Result<Vec<(u32, String, PathBuf)>, std::io::Err
     Ok(chosen)
 }
 
+/// Why an hwmon device gives no meter.
+#[derive(Debug, thiserror::Error)]
+enum OpenError {
+    #[error("cannot list: {0}")]
+    List(#[source] std::io::Error),
+    #[error("{device}: no power*_input, power*_average or energy*_input channel")]
+    NoChannel { device: String },
+    #[error("{device}: no readable channel; {}", notes.join("; "))]
+    NoReadableChannel { device: String, notes: Vec<String> },
+}
+
 fn open_device(
     dir: &Path,
     device: &str,
     new_clock: &dyn Fn() -> Clock,
-) -> Result<(Vec<Channel>, Vec<String>, Clock), String> {
-    let files = channel_files(dir).map_err(|e| format!("cannot list: {e}"))?;
+) -> Result<(Vec<Channel>, Vec<String>, Clock), OpenError> {
+    let files = channel_files(dir).map_err(OpenError::List)?;
     if files.is_empty() {
-        return Err(format!(
-            "{device}: no power*_input, power*_average or energy*_input channel"
-        ));
+        return Err(OpenError::NoChannel {
+            device: device.to_string(),
+        });
     }
     let mut clock = new_clock();
     let now_s = clock();
@@ -141,10 +152,10 @@ fn open_device(
         }
     }
     if channels.is_empty() {
-        return Err(format!(
-            "{device}: no readable channel; {}",
-            notes.join("; ")
-        ));
+        return Err(OpenError::NoReadableChannel {
+            device: device.to_string(),
+            notes,
+        });
     }
     Ok((channels, notes, clock))
 }
@@ -208,7 +219,7 @@ pub fn discover(root: &Path, new_clock: &dyn Fn() -> Clock) -> (Vec<HwmonMeter>,
                 probes.push(Probe::accepted(KIND, dir.display(), what));
                 meters.push(meter);
             }
-            Err(why) => probes.push(Probe::rejected(KIND, dir.display(), why)),
+            Err(why) => probes.push(Probe::rejected(KIND, dir.display(), why.to_string())),
         }
     }
     (meters, probes)
