@@ -236,7 +236,14 @@ mod tests {
         assert_eq!(level(next(&mut source)), (0, 10));
         assert_eq!(level(next(&mut source)), (1, 20));
         match next(&mut source) {
-            Err(CameraSourceError::Format { path, .. }) => assert!(path.ends_with("frame_02.png")),
+            Err(CameraSourceError::Format { path, source }) => {
+                assert!(path.ends_with("frame_02.png"));
+                // The decoder's own error is kept as the cause.
+                assert!(
+                    source.downcast_ref::<image::ImageError>().is_some(),
+                    "{source:?}"
+                );
+            }
             other => panic!("expected a format error, got {other:?}"),
         }
         assert!(matches!(
@@ -322,9 +329,12 @@ mod tests {
     #[test]
     fn an_unreadable_file_is_a_named_error() {
         let dir = tempfile::tempdir().unwrap();
-        assert!(matches!(
-            load_gray(&dir.path().join("gone.png")),
-            Err(CameraSourceError::Unreadable { .. })
-        ));
+        match load_gray(&dir.path().join("gone.png")) {
+            Err(CameraSourceError::Unreadable { source, .. }) => {
+                assert_eq!(source.kind(), std::io::ErrorKind::NotFound)
+            }
+            Err(other) => panic!("expected an unreadable file, got {other:?}"),
+            Ok(_) => panic!("a missing file was read"),
+        }
     }
 }
