@@ -19,7 +19,7 @@ pub enum PlotError {
     },
 }
 
-pub(crate) type SvgArea<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
+type SvgArea<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
 
 /// Draws one SVG document of `size_px` (width, height).
 pub(crate) fn render_svg(

@@ -284,7 +284,11 @@ pub fn run(args: &SimArgs) -> ExitCode {
                 match plot.and_then(|doc| crate::plot::write_text(&path, &doc)) {
                     Ok(()) => eprintln!("wrote {}", path.display()),
                     Err(error) => {
-                        eprintln!("error: {error}");
+                        // A write error names its file; a plot not drawn is named here.
+                        match error {
+                            crate::plot::PlotError::Write { .. } => eprintln!("error: {error}"),
+                            _ => eprintln!("error: cannot write {}: {error}", path.display()),
+                        }
                         return ExitCode::FAILURE;
                     }
                 }

@@ -24,7 +24,7 @@ use crate::bus::Bus;
 use crate::catalog::{PluginCatalog, PluginInfo};
 use crate::config::suggest::closest;
 use crate::config::{Knob, Resource, TaskConfig};
-use crate::task::{panic_message, Task, TaskBuild, TaskError};
+use crate::task::{panic_as_failure, Task, TaskBuild, TaskError};
 use std::fmt;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
@@ -54,8 +54,7 @@ impl TaskFactory {
         bus: &Bus,
     ) -> Result<Box<dyn Task>, RegistryError> {
         let build = TaskBuild::new(params, task, &self.info, bus);
-        let created = catch_unwind(AssertUnwindSafe(|| (self.make)(&build)))
-            .unwrap_or_else(|payload| Err(TaskError::Failed(panic_message(payload.as_ref()))));
+        let created = panic_as_failure(catch_unwind(AssertUnwindSafe(|| (self.make)(&build))));
         created.map_err(|source| RegistryError::Create {
             task: task.name.clone(),
             plugin: task.plugin.clone(),

@@ -181,6 +181,13 @@ pub fn parse_params<P: DeserializeOwned>(params: &toml::Table) -> Result<P, Task
         .map_err(|error: toml::de::Error| TaskError::Params(error.message().to_string()))
 }
 
+/// A plugin call's own result, or its panic as a [`TaskError::Failed`] naming the panic.
+pub(crate) fn panic_as_failure<T>(
+    result: std::thread::Result<Result<T, TaskError>>,
+) -> Result<T, TaskError> {
+    result.unwrap_or_else(|payload| Err(TaskError::Failed(panic_message(payload.as_ref()))))
+}
+
 /// The message of a caught panic, for the failure report.
 pub(crate) fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
     if let Some(message) = payload.downcast_ref::<&str>() {

@@ -382,22 +382,17 @@ fn gray_image(sample: &gst::Sample) -> Result<GrayImage, SampleError> {
         return Err(SampleError::Format(info.format()));
     }
     let buffer = sample.buffer().ok_or(SampleError::NoBuffer)?;
-    let frame =
-        gst_video::VideoFrameRef::from_buffer_ref_readable(buffer, &info).map_err(|source| {
-            SampleError::Map {
-                width: info.width(),
-                height: info.height(),
-                source,
-            }
-        })?;
-    let (width, height) = (info.width() as usize, info.height() as usize);
-    let stride_bytes = frame.plane_stride()[0];
-    let stride = usize::try_from(stride_bytes).map_err(|_| SampleError::Stride(stride_bytes))?;
-    let plane = frame.plane_data(0).map_err(|source| SampleError::Map {
+    let unmapped = |source| SampleError::Map {
         width: info.width(),
         height: info.height(),
         source,
-    })?;
+    };
+    let frame =
+        gst_video::VideoFrameRef::from_buffer_ref_readable(buffer, &info).map_err(unmapped)?;
+    let (width, height) = (info.width() as usize, info.height() as usize);
+    let stride_bytes = frame.plane_stride()[0];
+    let stride = usize::try_from(stride_bytes).map_err(|_| SampleError::Stride(stride_bytes))?;
+    let plane = frame.plane_data(0).map_err(unmapped)?;
     if width == 0 || height == 0 || stride < width || plane.len() < stride * (height - 1) + width {
         return Err(SampleError::Short {
             bytes: plane.len(),

@@ -119,12 +119,8 @@ impl ConnectionSpec {
                             .to_string(),
                     ));
                 }
-                let baud: u32 = baud.parse().map_err(|source| LinkError::NotANumber {
-                    input: input.to_string(),
-                    field: "baud rate",
-                    text: baud.to_string(),
-                    expected: format!("one of {BAUD_RATES:?}"),
-                    source,
+                let baud = parse_number(input, "baud rate", baud, || {
+                    format!("one of {BAUD_RATES:?}")
                 })?;
                 if !BAUD_RATES.contains(&baud) {
                     return Err(bad(format!(
@@ -176,16 +172,27 @@ impl ConnectionSpec {
     }
 }
 
+/// A number field (`port`, `baud rate`) of connection string `input`; `expected` says what
+/// would have been right.
+fn parse_number(
+    input: &str,
+    field: &'static str,
+    text: &str,
+    expected: impl FnOnce() -> String,
+) -> Result<u32, LinkError> {
+    text.parse().map_err(|source| LinkError::NotANumber {
+        input: input.to_string(),
+        field,
+        text: text.to_string(),
+        expected: expected(),
+        source,
+    })
+}
+
 /// The port of connection string `input`.
 fn parse_port(input: &str, port: &str, zero_allowed: bool) -> Result<u16, LinkError> {
     let low = if zero_allowed { 0 } else { 1 };
-    let value: u32 = port.parse().map_err(|source| LinkError::NotANumber {
-        input: input.to_string(),
-        field: "port",
-        text: port.to_string(),
-        expected: format!("{low}..=65535"),
-        source,
-    })?;
+    let value = parse_number(input, "port", port, || format!("{low}..=65535"))?;
     if value > 65_535 || value < low {
         return Err(LinkError::BadConnectionString {
             input: input.to_string(),

@@ -57,13 +57,15 @@ pub fn parse_line(line: &str) -> Result<Option<(f64, f64)>, LineError> {
         return Err(LineError::Cells { cells: cells.len() });
     }
     let number = |column: &'static str, text: &str| -> Result<f64, LineError> {
-        let text = text.to_string();
         match text.parse::<f64>() {
             Ok(value) if value.is_finite() => Ok(value),
-            Ok(_) => Err(LineError::NotFinite { column, text }),
+            Ok(_) => Err(LineError::NotFinite {
+                column,
+                text: text.to_string(),
+            }),
             Err(source) => Err(LineError::NotANumber {
                 column,
-                text,
+                text: text.to_string(),
                 source,
             }),
         }

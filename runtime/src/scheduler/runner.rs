@@ -4,7 +4,7 @@ use super::cadence::{Cadence, Completion};
 use super::stats::StatsAccum;
 use super::timing::SplitMix64;
 use super::*;
-use crate::task::TaskError;
+use crate::task::{panic_as_failure, TaskError};
 
 /// What a build hands to an execution mode.
 pub(crate) struct Parts {
@@ -147,7 +147,7 @@ impl TaskRunner {
             instance.set_qos(level)?;
             instance.start(&mut ctx)
         }));
-        flatten(result)
+        panic_as_failure(result)
     }
 
     /// One activation, run at `now`: rebuild the instance if it failed before, then step.
@@ -195,7 +195,7 @@ impl TaskRunner {
         report.reported_cost = ctx.reported_step_cost();
         report.stepped = true;
         self.activations += 1;
-        if let Err(error) = flatten(result) {
+        if let Err(error) = panic_as_failure(result) {
             report.failure = Some(self.fail(&error));
         }
         report
@@ -272,7 +272,9 @@ impl TaskRunner {
         tracing::info!(task = %self.config.name, from, to = level, knob = %new_level.knob, value = new_level.value, period_ms = new_level.period_ms, "QoS level changed");
         let instance = self.instance.as_mut()?;
         let result = catch_unwind(AssertUnwindSafe(|| instance.set_qos(new_level)));
-        flatten(result).err().map(|error| self.fail(&error))
+        panic_as_failure(result)
+            .err()
+            .map(|error| self.fail(&error))
     }
 
     /// The instance failed: stop and drop it, then restart later or give up per the policy.
@@ -338,9 +340,4 @@ impl TaskRunner {
     pub fn snapshot(&self) -> TaskStats {
         lock(&self.stats).snapshot(&self.config.name, self.state)
     }
-}
-
-/// A call's own error, or its panic as a failure (as a plugin's constructor's panic is).
-fn flatten(result: std::thread::Result<Result<(), TaskError>>) -> Result<(), TaskError> {
-    result.unwrap_or_else(|payload| Err(TaskError::Failed(panic_message(payload.as_ref()))))
 }

@@ -58,7 +58,11 @@ fn close_in_config() -> LandingConfig {
 
 /// A controller brought to Descend at IH with the target centred.
 fn descending() -> (LandingController, f64) {
-    let mut c = LandingController::new(LandingConfig::default()).unwrap();
+    descending_with(LandingConfig::default())
+}
+
+fn descending_with(config: LandingConfig) -> (LandingController, f64) {
+    let mut c = LandingController::new(config).unwrap();
     let mut t_s = 0.0;
     let out = run(&mut c, &mut t_s, 1.0, Some(0.0), 7.5);
     assert_eq!(out.mode, LandingMode::Descend);
@@ -156,12 +160,7 @@ fn in_the_last_centimetres_the_correction_is_bounded() {
         ..LandingConfig::default()
     };
     let committed_then_off_centre = |height_m: f64| {
-        let mut c = LandingController::new(config).unwrap();
-        let mut t_s = 0.0;
-        assert_eq!(
-            run(&mut c, &mut t_s, 1.0, Some(0.0), 7.5).mode,
-            LandingMode::Descend
-        );
+        let (mut c, mut t_s) = descending_with(config);
         let lh_m = c.config().final_landing_height_m;
         assert_eq!(
             run(&mut c, &mut t_s, 1.0, Some(0.0), lh_m).mode,
@@ -201,9 +200,7 @@ fn a_fast_descent_enters_the_touchdown_band_early() {
         band_m > config.touchdown_correction_height_m + 0.3,
         "{band_m}"
     );
-    let mut c = LandingController::new(config).unwrap();
-    let mut t_s = 0.0;
-    run(&mut c, &mut t_s, 1.0, Some(0.0), 7.5);
+    let (mut c, mut t_s) = descending_with(config);
     let lh_m = config.final_landing_height_m;
     assert_eq!(
         run(&mut c, &mut t_s, 1.0, Some(0.0), lh_m).mode,
