@@ -68,7 +68,7 @@ pub struct Touchdown {
 
 /// The surface a resting vehicle is attached to.
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Contact {
+pub(crate) enum Contact {
     Ground,
     /// Where on the pad it sits and its yaw relative to the pad's.
     Pad {
@@ -77,7 +77,7 @@ enum Contact {
     },
 }
 
-fn wrap_angle(angle_rad: f64) -> f64 {
+pub(crate) fn wrap_angle(angle_rad: f64) -> f64 {
     (angle_rad + PI).rem_euclid(TAU) - PI
 }
 
@@ -324,22 +324,11 @@ impl Multirotor {
     /// Distance along the body's down axis to the pad's top or the ground, whichever is hit
     /// first; `None` outside 0.1–15 m or when pointing at the sky.
     pub fn rangefinder_m(&self) -> Option<f64> {
-        let down = self.body_down_ned();
-        if down.z <= 1e-6 {
-            return None;
-        }
-        let p = self.position_ned_m;
-        let mut range = (0.0 - p.z) / down.z;
-        if let Some(pad) = &self.last_pad {
-            let t = (pad.centre_ned_m.z - p.z) / down.z;
-            let hit = p + down * t;
-            if t >= 0.0 && t < range && pad.contains_ne(hit.xy()) {
-                range = t;
-            }
-        }
-        (RANGEFINDER_MIN_M..=RANGEFINDER_MAX_M)
-            .contains(&range)
-            .then_some(range)
+        range_to_surface_m(
+            self.position_ned_m,
+            self.body_down_ned(),
+            self.last_pad.as_ref(),
+        )
     }
 
     fn setpoint_fresh(&self, time_s: f64) -> bool {
@@ -488,6 +477,100 @@ impl Multirotor {
             gimbal.step(dt_s, &self.attitude);
         }
         Ok(())
+    }
+}
+
+/// Distance from `position_ned_m` along `direction_ned` (a unit vector) to the pad's top or the
+/// ground, whichever is hit first: a downward rangefinder's reading; `None` outside 0.1–15 m or
+/// when pointing at the sky.
+pub fn range_to_surface_m(
+    position_ned_m: Vector3<f64>,
+    direction_ned: Vector3<f64>,
+    pad: Option<&PadState>,
+) -> Option<f64> {
+    if direction_ned.z <= 1e-6 {
+        return None;
+    }
+    let p = position_ned_m;
+    let mut range = (0.0 - p.z) / direction_ned.z;
+    if let Some(pad) = pad {
+        let t = (pad.centre_ned_m.z - p.z) / direction_ned.z;
+        let hit = p + direction_ned * t;
+        if t >= 0.0 && t < range && pad.contains_ne(hit.xy()) {
+            range = t;
+        }
+    }
+    (RANGEFINDER_MIN_M..=RANGEFINDER_MAX_M)
+        .contains(&range)
+        .then_some(range)
+}
+
+/// A body that moved from `previous_down_m` to `position_ned_m` in one step: the touchdown, if
+/// it crossed the pad's top inside its square or reached the ground. The pad heaves: a top that
+/// rose past the body since the last step still counts as crossed from above (it was above the
+/// lower of the two tops).
+pub(crate) fn touchdown_crossing(
+    time_s: f64,
+    previous_down_m: f64,
+    position_ned_m: Vector3<f64>,
+    velocity_ned_m_s: Vector3<f64>,
+    tilt_rad: f64,
+    pad: &PadState,
+    previous_pad: &PadState,
+) -> Option<Touchdown> {
+    let pad_top = pad.centre_ned_m.z;
+    let hits_pad = previous_down_m <= pad_top.max(previous_pad.centre_ned_m.z)
+        && position_ned_m.z >= pad_top
+        && pad.contains_ne(position_ned_m.xy());
+    if !(hits_pad || position_ned_m.z >= 0.0) {
+        return None;
+    }
+    let offset = pad.to_pad_frame(position_ned_m.xy());
+    let surface_velocity = if hits_pad {
+        pad.velocity_ned_m_s
+    } else {
+        Vector3::zeros()
+    };
+    Some(Touchdown {
+        time_s,
+        on_pad: hits_pad,
+        offset_in_pad_frame_m: offset,
+        horizontal_error_m: offset.norm(),
+        vertical_speed_m_s: velocity_ned_m_s.z,
+        relative_horizontal_speed_m_s: (velocity_ned_m_s - surface_velocity).xy().norm(),
+        tilt_deg: tilt_rad.to_degrees(),
+    })
+}
+
+/// Where a body resting on `contact` is, how it moves and its yaw: on the ground it stays put;
+/// on the pad it rides with it, with the turn's contribution at its offset.
+pub(crate) fn resting_state(
+    contact: Contact,
+    position_ned_m: Vector3<f64>,
+    yaw_rad: f64,
+    pad: &PadState,
+    previous_pad: &PadState,
+    pad_dt_s: f64,
+) -> (Vector3<f64>, Vector3<f64>, f64) {
+    match contact {
+        Contact::Ground => (
+            Vector3::new(position_ned_m.x, position_ned_m.y, 0.0),
+            Vector3::zeros(),
+            yaw_rad,
+        ),
+        Contact::Pad {
+            offset_pad_m,
+            yaw_offset_rad,
+        } => {
+            let ne = pad.from_pad_frame(offset_pad_m);
+            let pad_yaw_rate = wrap_angle(pad.yaw_rad - previous_pad.yaw_rad) / pad_dt_s;
+            let r = ne - pad.centre_ned_m.xy();
+            (
+                Vector3::new(ne.x, ne.y, pad.centre_ned_m.z),
+                pad.velocity_ned_m_s + Vector3::new(-pad_yaw_rate * r.y, pad_yaw_rate * r.x, 0.0),
+                wrap_angle(pad.yaw_rad + yaw_offset_rad),
+            )
+        }
     }
 }
 

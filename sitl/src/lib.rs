@@ -7,6 +7,7 @@
 //! the world alone on the wall clock, for a runtime in another process (`qosrt sim --serve`).
 
 pub mod hazard_score;
+pub mod hil;
 pub mod mission;
 pub mod px4_sih;
 pub mod serve;

@@ -4,7 +4,7 @@
 use algorithms::estimation::projection::Attitude;
 use nalgebra::{Rotation3, Vector2, Vector3};
 
-use super::{wrap_angle, Contact, Multirotor, Touchdown, GRAVITY_M_S2};
+use super::{resting_state, touchdown_crossing, wrap_angle, Contact, Multirotor, GRAVITY_M_S2};
 use crate::flight::FlightMode;
 use crate::tractor::PadState;
 
@@ -195,26 +195,17 @@ impl Multirotor {
             } else {
                 roll = 0.0;
                 pitch = 0.0;
-                match contact {
-                    Contact::Ground => {
-                        self.position_ned_m.z = 0.0;
-                        self.velocity_ned_m_s = Vector3::zeros();
-                    }
-                    Contact::Pad {
-                        offset_pad_m,
-                        yaw_offset_rad,
-                    } => {
-                        let ne = pad.from_pad_frame(offset_pad_m);
-                        self.position_ned_m = Vector3::new(ne.x, ne.y, pad.centre_ned_m.z);
-                        // Pad velocity plus the turn's contribution at the offset.
-                        let pad_yaw_rate =
-                            wrap_angle(pad.yaw_rad - previous_pad.yaw_rad) / pad_dt_s;
-                        let r = ne - pad.centre_ned_m.xy();
-                        self.velocity_ned_m_s = pad.velocity_ned_m_s
-                            + Vector3::new(-pad_yaw_rate * r.y, pad_yaw_rate * r.x, 0.0);
-                        yaw = wrap_angle(pad.yaw_rad + yaw_offset_rad);
-                    }
-                }
+                let (position, velocity, resting_yaw) = resting_state(
+                    contact,
+                    self.position_ned_m,
+                    yaw,
+                    pad,
+                    previous_pad,
+                    pad_dt_s,
+                );
+                self.position_ned_m = position;
+                self.velocity_ned_m_s = velocity;
+                yaw = resting_yaw;
                 self.attitude = Attitude::new(roll, pitch, yaw);
                 self.acceleration_ned_m_s2 = (self.velocity_ned_m_s - previous_velocity) / h;
                 self.euler_rates_rad_s = Vector3::new(
@@ -240,43 +231,29 @@ impl Multirotor {
         );
 
         // Touchdown: crossing the pad's top inside its square, or reaching the ground.
-        // The pad heaves: a top that rose past the vehicle since the last step still counts as
-        // crossed from above (it was above the lower of the two tops).
-        let pad_top = pad.centre_ned_m.z;
-        let hits_pad = previous_down <= pad_top.max(previous_pad.centre_ned_m.z)
-            && self.position_ned_m.z >= pad_top
-            && pad.contains_ne(self.position_ned_m.xy());
-        let hits_ground = self.position_ned_m.z >= 0.0;
-        if hits_pad || hits_ground {
-            let offset = pad.to_pad_frame(self.position_ned_m.xy());
-            let surface_velocity = if hits_pad {
-                pad.velocity_ned_m_s
-            } else {
-                Vector3::zeros()
-            };
-            let vertical_speed = self.velocity_ned_m_s.z;
-            self.touchdowns.push(Touchdown {
-                time_s,
-                on_pad: hits_pad,
-                offset_in_pad_frame_m: offset,
-                horizontal_error_m: offset.norm(),
-                vertical_speed_m_s: vertical_speed,
-                relative_horizontal_speed_m_s: (self.velocity_ned_m_s - surface_velocity)
-                    .xy()
-                    .norm(),
-                tilt_deg: self.tilt_rad().to_degrees(),
-            });
-            if hits_pad {
+        if let Some(touchdown) = touchdown_crossing(
+            time_s,
+            previous_down,
+            self.position_ned_m,
+            self.velocity_ned_m_s,
+            self.tilt_rad(),
+            pad,
+            previous_pad,
+        ) {
+            let vertical_speed = touchdown.vertical_speed_m_s;
+            self.touchdowns.push(touchdown);
+            if touchdown.on_pad {
                 self.contact = Some(Contact::Pad {
-                    offset_pad_m: offset,
+                    offset_pad_m: touchdown.offset_in_pad_frame_m,
                     yaw_offset_rad: wrap_angle(yaw - pad.yaw_rad),
                 });
-                self.position_ned_m.z = pad_top;
+                self.position_ned_m.z = pad.centre_ned_m.z;
+                self.velocity_ned_m_s = pad.velocity_ned_m_s;
             } else {
                 self.contact = Some(Contact::Ground);
                 self.position_ned_m.z = 0.0;
+                self.velocity_ned_m_s = Vector3::zeros();
             }
-            self.velocity_ned_m_s = surface_velocity;
             self.detect_landing(time_s, thrust_magnitude_n, vertical_speed);
         }
     }

@@ -1,0 +1,106 @@
+//! The world's one physics step: the tractor drives on, the wind blows, the vehicle's body
+//! (the built-in multirotor, or the rigid body a real autopilot flies) integrates its forces.
+//! The in-process simulator, the served world and the real autopilots' backends all step it
+//! here.
+
+use nalgebra::Vector3;
+
+use crate::quadrotor::{Quadrotor, QuadrotorError};
+use crate::tractor::{PadState, Tractor, TractorError};
+use crate::vehicle::{Multirotor, VehicleError};
+use crate::wind::Wind;
+
+/// A body the world moves.
+pub trait Body {
+    fn position_ned_m(&self) -> Vector3<f64>;
+    fn velocity_ned_m_s(&self) -> Vector3<f64>;
+    /// Integrates `dt_s` up to `time_s` under the wind's force, above the pad as it is then.
+    fn advance(
+        &mut self,
+        dt_s: f64,
+        time_s: f64,
+        wind_force_ned_n: Vector3<f64>,
+        pad: &PadState,
+    ) -> Result<(), WorldError>;
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum WorldError {
+    #[error(transparent)]
+    Tractor(#[from] TractorError),
+    #[error(transparent)]
+    Vehicle(#[from] VehicleError),
+    #[error(transparent)]
+    Quadrotor(#[from] QuadrotorError),
+}
+
+impl Body for Multirotor {
+    fn position_ned_m(&self) -> Vector3<f64> {
+        Multirotor::position_ned_m(self)
+    }
+    fn velocity_ned_m_s(&self) -> Vector3<f64> {
+        Multirotor::velocity_ned_m_s(self)
+    }
+    fn advance(
+        &mut self,
+        dt_s: f64,
+        time_s: f64,
+        wind_force_ned_n: Vector3<f64>,
+        pad: &PadState,
+    ) -> Result<(), WorldError> {
+        Ok(self.step(dt_s, time_s, wind_force_ned_n, pad)?)
+    }
+}
+
+impl Body for Quadrotor {
+    fn position_ned_m(&self) -> Vector3<f64> {
+        Quadrotor::position_ned_m(self)
+    }
+    fn velocity_ned_m_s(&self) -> Vector3<f64> {
+        Quadrotor::velocity_ned_m_s(self)
+    }
+    fn advance(
+        &mut self,
+        dt_s: f64,
+        time_s: f64,
+        wind_force_ned_n: Vector3<f64>,
+        pad: &PadState,
+    ) -> Result<(), WorldError> {
+        Ok(self.step(dt_s, time_s, wind_force_ned_n, pad)?)
+    }
+}
+
+/// The tractor with its pad and the air around the vehicle.
+#[derive(Debug, Clone)]
+pub struct World {
+    pub tractor: Tractor,
+    pub wind: Wind,
+    /// The tractor waits parked until the vehicle is with it.
+    pub tractor_moving: bool,
+}
+
+impl World {
+    pub fn new(tractor: Tractor, wind: Wind) -> Self {
+        Self {
+            tractor,
+            wind,
+            tractor_moving: false,
+        }
+    }
+
+    pub fn pad(&self) -> PadState {
+        self.tractor.pad()
+    }
+
+    /// One physics step from `time_s` to `time_s + dt_s`.
+    pub fn step(&mut self, time_s: f64, dt_s: f64, body: &mut impl Body) -> Result<(), WorldError> {
+        if self.tractor_moving {
+            self.tractor.step(dt_s)?;
+        }
+        let position = body.position_ned_m();
+        let force = self
+            .wind
+            .force_ned_n(time_s, -position.z, body.velocity_ned_m_s());
+        body.advance(dt_s, time_s + dt_s, force, &self.tractor.pad())
+    }
+}

@@ -1,0 +1,461 @@
+//! The real ArduPilot (Copter 4.6.3 SITL, `-M JSON:127.0.0.1`: no physics of its own) flying
+//! the world's rigid-body quadrotor over its JSON interface: its EKF3 estimates from the
+//! world's IMU, position and rangefinder, its controllers fly the world's body in the world's
+//! wind, as fast as both sides answer. Skips, saying why, without `../shared/ardupilot-sitl`.
+
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use mavlink::dialects::common::{MavCmd, MavMessage, MavModeFlag, MavResult, COMMAND_LONG_DATA};
+use mavlink::{MavConnection, MavHeader};
+use nalgebra::Vector3;
+use sim::quadrotor::{Quadrotor, QuadrotorParams};
+use sim::sensors::{Home, SensorParams, Sensors};
+use sim::tractor::PadState;
+use sim::vehicle::Touchdown;
+use sim::wind::{Wind, WindConfig};
+use sitl::hil::ardupilot_json::ArduPilotJson;
+
+/// Ports 5800 (MAVLink), 14590, 9042 (JSON): no other test's (ArduPilot 1 and 2, PX4 0–9).
+const INSTANCE: u8 = 4;
+const TAKEOFF_ALTITUDE_M: f64 = 5.0;
+const GUIDED: f32 = 4.0;
+const LAND: f32 = 9.0;
+/// The world's trace of the true position, every 50 ms of simulated time.
+const TRACE_PERIOD_S: f64 = 0.05;
+
+/// arducopter, stopped when dropped (a failed assertion included).
+struct ArduPilotProcess(u32);
+
+impl Drop for ArduPilotProcess {
+    fn drop(&mut self) {
+        // SIGKILL: arducopter waiting for a JSON answer that no longer comes loops in its
+        // receive and never sees SIGTERM.
+        let _ = Command::new("kill")
+            .args(["-9", &self.0.to_string()])
+            .status();
+    }
+}
+
+fn start_ardupilot() -> Option<ArduPilotProcess> {
+    let start = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/ardupilot-sitl/start");
+    if !start.exists() {
+        eprintln!("skipped: {} is absent", start.display());
+        return None;
+    }
+    let home = Home::default();
+    let output = Command::new(&start)
+        .args(["-I", &INSTANCE.to_string(), "-M", "JSON:127.0.0.1"])
+        // Its pacing: sleep only to keep the simulated clock at 100× the wall clock, i.e.
+        // never here: the world and ArduPilot run as fast as they answer each other.
+        .args(["-s", "100"])
+        // The bundled copter.parm flies a quad "+" (FRAME_TYPE 0); the world's body is the
+        // quad X whose rotor order the servo channels follow.
+        .args(["-P", "FRAME_TYPE=1"])
+        // Read the world's downward rangefinder (`rng_1`) as rangefinder 1.
+        .args(["-P", "RNGFND1_TYPE=100"])
+        // ArduPilot's home is the world's (sim::sensors::Home), not SITL's default in Canberra.
+        .args([
+            "-O",
+            &format!(
+                "{},{},{},0",
+                home.latitude_deg, home.longitude_deg, home.altitude_m
+            ),
+        ])
+        .stdin(Stdio::null())
+        .output()
+        .expect("the ArduPilot start script runs");
+    assert!(
+        output.status.success(),
+        "ArduPilot did not start: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let pid = String::from_utf8_lossy(&output.stdout)
+        .trim()
+        .parse()
+        .expect("the start script prints arducopter's pid");
+    Some(ArduPilotProcess(pid))
+}
+
+/// A pad far away: only the ground is under the body.
+fn far_pad() -> PadState {
+    PadState {
+        centre_ned_m: Vector3::new(1_000.0, 1_000.0, -1.5),
+        yaw_rad: 0.0,
+        velocity_ned_m_s: Vector3::zeros(),
+        half_size_m: 0.75,
+    }
+}
+
+/// What the world thread shares: the truth ArduPilot does not see.
+#[derive(Debug, Default, Clone)]
+struct Truth {
+    time_s: f64,
+    position_ned_m: Vector3<f64>,
+    touchdowns: Vec<Touchdown>,
+    frames: u64,
+    resends: u64,
+    frame_rate_hz: u16,
+    trace: Vec<(f64, Vector3<f64>)>,
+    error: Option<String>,
+}
+
+/// The lockstep loop: each new servo frame steps the world by 1/frame rate and is answered
+/// with the state at the end of the step; a resent frame gets the same answer again.
+fn run_world(mut backend: ArduPilotJson, truth: Arc<Mutex<Truth>>, stop: Arc<AtomicBool>) -> f64 {
+    let mut body = Quadrotor::on_ground(QuadrotorParams::default(), Vector3::zeros()).unwrap();
+    let mut sensors = Sensors::new(SensorParams::default(), Home::default(), 11);
+    let mut wind = Wind::new(
+        WindConfig::Gusts {
+            speed_m_s: 8.0,
+            // From the east: it pushes the body west.
+            direction_from_rad: std::f64::consts::FRAC_PI_2,
+        },
+        11,
+    )
+    .unwrap();
+    let pad = far_pad();
+    let wall = Instant::now();
+    let mut time_s = 0.0;
+    let mut next_trace_s = 0.0;
+    let fail = |message: String| truth.lock().unwrap().error = Some(message);
+    while !stop.load(Ordering::Relaxed) {
+        let packet = match backend.receive_servos(Duration::from_secs(5)) {
+            Ok(packet) => packet,
+            Err(error) => {
+                fail(error.to_string());
+                break;
+            }
+        };
+        if backend.is_resend(&packet) {
+            if let Err(error) = backend.resend_last_state() {
+                fail(error.to_string());
+                break;
+            }
+            truth.lock().unwrap().resends += 1;
+            continue;
+        }
+        let dt_s = packet.step_s();
+        body.set_motor_commands(packet.motor_commands());
+        let position = body.position_ned_m();
+        let force = wind.force_ned_n(time_s, -position.z, body.velocity_ned_m_s());
+        if let Err(error) = body.step(dt_s, time_s + dt_s, force, &pad) {
+            fail(error.to_string());
+            break;
+        }
+        time_s += dt_s;
+        let state = *body.state();
+        let imu = sensors.imu(dt_s, &state);
+        let range = sensors.rangefinder(body.rangefinder_m());
+        if let Err(error) = backend.send_state(time_s, &state, &imu, range) {
+            fail(error.to_string());
+            break;
+        }
+        let mut t = truth.lock().unwrap();
+        t.time_s = time_s;
+        t.position_ned_m = state.position_ned_m;
+        t.frames += 1;
+        t.frame_rate_hz = packet.frame_rate_hz;
+        if body.touchdowns().len() != t.touchdowns.len() {
+            t.touchdowns = body.touchdowns().to_vec();
+        }
+        if time_s >= next_trace_s {
+            t.trace.push((time_s, state.position_ned_m));
+            next_trace_s += TRACE_PERIOD_S;
+        }
+    }
+    time_s / wall.elapsed().as_secs_f64()
+}
+
+/// A ground station on ArduPilot's first MAVLink server.
+struct Gcs {
+    link: mavlink::Connection<MavMessage>,
+    acks: Vec<(MavCmd, MavResult)>,
+    texts: Vec<String>,
+    armed: bool,
+    custom_mode: u32,
+    /// The last DISTANCE_SENSOR: what ArduPilot read from `rng_1`, m.
+    rangefinder_m: Option<f64>,
+}
+
+impl Gcs {
+    fn connect(port: u16) -> Self {
+        let link = mavlink::connect::<MavMessage>(&format!("tcpout:127.0.0.1:{port}"))
+            .expect("ArduPilot's MAVLink TCP server accepts");
+        Self {
+            link,
+            acks: Vec::new(),
+            texts: Vec::new(),
+            armed: false,
+            custom_mode: 0,
+            rangefinder_m: None,
+        }
+    }
+
+    fn command(&self, command: MavCmd, params: [f32; 7]) {
+        let message = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+            target_system: 1,
+            target_component: 1,
+            command,
+            confirmation: 0,
+            param1: params[0],
+            param2: params[1],
+            param3: params[2],
+            param4: params[3],
+            param5: params[4],
+            param6: params[5],
+            param7: params[6],
+        });
+        let header = MavHeader {
+            system_id: 255,
+            component_id: 190,
+            sequence: 0,
+        };
+        self.link.send(&header, &message).expect("MAVLink send");
+    }
+
+    fn set_mode(&self, mode: f32) {
+        // p1 = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, p2 = ArduCopter's mode number.
+        self.command(
+            MavCmd::MAV_CMD_DO_SET_MODE,
+            [1.0, mode, 0.0, 0.0, 0.0, 0.0, 0.0],
+        );
+    }
+
+    /// Reads what ArduPilot sends for `wall` (the link's reads time out every 100 ms).
+    fn pump(&mut self, wall: Duration) {
+        let until = Instant::now() + wall;
+        while Instant::now() < until {
+            match self.link.recv() {
+                Ok((_, MavMessage::COMMAND_ACK(ack))) => self.acks.push((ack.command, ack.result)),
+                Ok((_, MavMessage::STATUSTEXT(text))) => {
+                    let text = String::from_utf8_lossy(&text.text.to_vec())
+                        .trim_end_matches('\0')
+                        .to_string();
+                    self.texts.push(text);
+                }
+                Ok((header, MavMessage::HEARTBEAT(heartbeat))) if header.component_id == 1 => {
+                    self.armed = heartbeat
+                        .base_mode
+                        .contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED);
+                    self.custom_mode = heartbeat.custom_mode;
+                }
+                Ok((_, MavMessage::DISTANCE_SENSOR(distance))) => {
+                    self.rangefinder_m = Some(f64::from(distance.current_distance) / 100.0);
+                }
+                Ok(_) => {}
+                Err(_) => {}
+            }
+        }
+    }
+
+    fn accepted(&mut self, command: MavCmd) -> bool {
+        let accepted = self
+            .acks
+            .contains(&(command, MavResult::MAV_RESULT_ACCEPTED));
+        self.acks.retain(|(c, _)| *c != command);
+        accepted
+    }
+
+    fn last_texts(&self) -> &[String] {
+        &self.texts[self.texts.len().saturating_sub(8)..]
+    }
+}
+
+#[test]
+fn ardupilot_takes_off_holds_in_8_m_s_gusts_and_lands_in_our_world() {
+    // Listen before ArduPilot starts: its first servo packets find the world there.
+    let backend = ArduPilotJson::bind(INSTANCE).unwrap();
+    let Some(_ardupilot) = start_ardupilot() else {
+        return;
+    };
+    let wall = Instant::now();
+    let deadline = wall + Duration::from_secs(90);
+    let truth = Arc::new(Mutex::new(Truth::default()));
+    let stop = Arc::new(AtomicBool::new(false));
+    let world = {
+        let (truth, stop) = (truth.clone(), stop.clone());
+        std::thread::spawn(move || run_world(backend, truth, stop))
+    };
+    let snapshot = || {
+        let t = truth.lock().unwrap().clone();
+        assert!(t.error.is_none(), "the world stopped: {t:?}");
+        t
+    };
+    let mut gcs = Gcs::connect(5760 + 10 * u16::from(INSTANCE));
+
+    // GUIDED and arm: refused until EKF3 has a position (GPS), then accepted.
+    loop {
+        assert!(
+            Instant::now() < deadline,
+            "never armed by t = {:.1} s: {:?}",
+            snapshot().time_s,
+            gcs.last_texts()
+        );
+        gcs.set_mode(GUIDED);
+        gcs.command(
+            MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        );
+        gcs.pump(Duration::from_millis(300));
+        if gcs.accepted(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM) {
+            break;
+        }
+    }
+    let armed_at_s = snapshot().time_s;
+    // ArduPilot streams nothing until asked: its rangefinder reading at 5 Hz. (Asked at boot,
+    // the request is accepted and then forgotten when its streams start.)
+    gcs.command(
+        MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+        [132.0, 200_000.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    );
+    let wall_at_arm_s = wall.elapsed().as_secs_f64();
+    // Take off within ArduPilot's 10 s, or it disarms.
+    loop {
+        assert!(
+            Instant::now() < deadline,
+            "NAV_TAKEOFF refused: {:?}",
+            gcs.last_texts()
+        );
+        gcs.command(
+            MavCmd::MAV_CMD_NAV_TAKEOFF,
+            [
+                0.0,
+                0.0,
+                0.0,
+                f32::NAN,
+                f32::NAN,
+                f32::NAN,
+                TAKEOFF_ALTITUDE_M as f32,
+            ],
+        );
+        gcs.pump(Duration::from_millis(200));
+        if gcs.accepted(MavCmd::MAV_CMD_NAV_TAKEOFF) {
+            break;
+        }
+    }
+    let takeoff_at_s = snapshot().time_s;
+
+    // Up, settled, then a 5 s hold in the wind, judged on the world's true position.
+    let mut reached_at_s = None;
+    let hold_from_s = loop {
+        assert!(
+            Instant::now() < deadline,
+            "no hover at 5 m: {:?}, {:?}",
+            snapshot().position_ned_m,
+            gcs.last_texts()
+        );
+        gcs.pump(Duration::from_millis(50));
+        let t = snapshot();
+        if reached_at_s.is_none() && (-t.position_ned_m.z - TAKEOFF_ALTITUDE_M).abs() < 0.5 {
+            reached_at_s = Some(t.time_s);
+        }
+        if let Some(reached) = reached_at_s {
+            if t.time_s >= reached + 3.0 {
+                break t.time_s;
+            }
+        }
+    };
+    let mut rangefinder_at_hover_m = None;
+    while snapshot().time_s < hold_from_s + 5.0 {
+        assert!(Instant::now() < deadline, "the hold never ended");
+        gcs.pump(Duration::from_millis(50));
+        rangefinder_at_hover_m = gcs.rangefinder_m.or(rangefinder_at_hover_m);
+    }
+    let hold: Vec<Vector3<f64>> = snapshot()
+        .trace
+        .iter()
+        .filter(|(t, _)| (hold_from_s..=hold_from_s + 5.0).contains(t))
+        .map(|(_, p)| *p)
+        .collect();
+    assert!(hold.len() > 50, "{} samples in the hold", hold.len());
+    let start = hold[0];
+    let worst_horizontal_m = hold
+        .iter()
+        .map(|p| (p - start).xy().norm())
+        .fold(0.0, f64::max);
+    let worst_altitude_error_m = hold
+        .iter()
+        .map(|p| (-p.z - TAKEOFF_ALTITUDE_M).abs())
+        .fold(0.0, f64::max);
+    let mean = hold.iter().sum::<Vector3<f64>>() / hold.len() as f64;
+
+    // LAND: ArduPilot's descent onto the world's ground.
+    let touchdowns_before = snapshot().touchdowns.len();
+    loop {
+        assert!(
+            Instant::now() < deadline,
+            "LAND refused: {:?}",
+            gcs.last_texts()
+        );
+        gcs.set_mode(LAND);
+        gcs.pump(Duration::from_millis(200));
+        if gcs.accepted(MavCmd::MAV_CMD_DO_SET_MODE) {
+            break;
+        }
+    }
+    let land_at_s = snapshot().time_s;
+    let touchdown = loop {
+        assert!(
+            Instant::now() < deadline,
+            "never touched down: {:?}, {:?}",
+            snapshot().position_ned_m,
+            gcs.last_texts()
+        );
+        gcs.pump(Duration::from_millis(50));
+        if let Some(touchdown) = snapshot().touchdowns.get(touchdowns_before) {
+            break *touchdown;
+        }
+    };
+    // ArduPilot's land detector disarms it once it is sure it is down.
+    while gcs.armed && Instant::now() < deadline {
+        gcs.pump(Duration::from_millis(100));
+    }
+    let disarmed_at_s = snapshot().time_s;
+    stop.store(true, Ordering::Relaxed);
+    let t = snapshot();
+    let real_time_factor = world.join().unwrap();
+
+    eprintln!(
+        "ArduPilot over JSON at {} Hz: {} frames, {} resends, {:.1}× real time ({:.1} s of flight in {:.1} s)",
+        t.frame_rate_hz,
+        t.frames,
+        t.resends,
+        real_time_factor,
+        t.time_s,
+        wall.elapsed().as_secs_f64()
+    );
+    eprintln!(
+        "armed at t = {armed_at_s:.1} s ({wall_at_arm_s:.1} s wall); take-off at {takeoff_at_s:.1} s, at 5 m ± 0.5 by {:.1} s",
+        reached_at_s.unwrap_or(f64::NAN)
+    );
+    eprintln!(
+        "hold over 5 s: mean altitude {:.2} m, worst altitude error {worst_altitude_error_m:.2} m, worst horizontal excursion {worst_horizontal_m:.2} m, {:.2} m from the take-off point; ArduPilot's rangefinder {rangefinder_at_hover_m:?} m",
+        -mean.z,
+        mean.xy().norm()
+    );
+    eprintln!(
+        "LAND at {land_at_s:.1} s: touchdown at {:.1} s at {:.2} m/s down, {:.2} m/s across, tilt {:.1}°; disarmed by {disarmed_at_s:.1} s",
+        touchdown.time_s,
+        touchdown.vertical_speed_m_s,
+        touchdown.relative_horizontal_speed_m_s,
+        touchdown.tilt_deg
+    );
+    assert!(worst_altitude_error_m < 1.0, "{worst_altitude_error_m}");
+    assert!(worst_horizontal_m < 1.0, "{worst_horizontal_m}");
+    if let Some(range) = rangefinder_at_hover_m {
+        assert!(
+            (range - TAKEOFF_ALTITUDE_M).abs() < 1.0,
+            "rangefinder {range} m"
+        );
+    }
+    assert!(touchdown.vertical_speed_m_s < 1.5, "{touchdown:?}");
+    assert!(
+        !gcs.armed,
+        "still armed {:.1} s after touchdown",
+        disarmed_at_s - touchdown.time_s
+    );
+}
