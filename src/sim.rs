@@ -12,6 +12,7 @@ use sim::outcome::{SimOutcome, SimSummary};
 use sim::realism::Realism;
 use sim::tractor::PathKind;
 use sitl::mission::{simulate, Faults, SimOptions, SimProgress, SimRecording, WindKind};
+use sitl::mission::{AutopilotKind, RealAutopilot};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -147,6 +148,20 @@ pub struct SimArgs {
     /// The served world stops after this long.
     #[arg(long, value_name = "S", default_value_t = 600.0, requires = "serve")]
     pub max_time_s: f64,
+    /// Who flies the vehicle: builtin (the world's own PX4-like autopilot, fast and
+    /// deterministic), px4 (a real PX4 with a `none_iris`-style airframe, the world its HIL
+    /// simulator on TCP 4560+i) or ardupilot (a real ArduPilot Copter, the world its JSON
+    /// physics backend on UDP 9002+10i). The runtime talks to it over MAVLink as on a drone.
+    #[arg(long, default_value = "builtin", conflicts_with = "serve")]
+    pub autopilot: sitl::mission::AutopilotKind,
+    /// The command that starts one autopilot instance, `{i}` replaced by its number, e.g.
+    /// `'../shared/px4-sitl/start -i {i} -m none_iris'` or `make px4_sitl none_iris`; without
+    /// it qosrt waits for an autopilot you started (instance --autopilot-instance).
+    #[arg(long, value_name = "CMD")]
+    pub autopilot_cmd: Option<String>,
+    /// The real autopilot's instance number (with --autopilot-cmd, the first of one per worker).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub autopilot_instance: u8,
     #[command(flatten)]
     pub recording: crate::replay::RecordArgs,
 }
@@ -173,6 +188,12 @@ impl SimArgs {
             } else {
                 Realism::default()
             },
+            autopilot: (self.autopilot != AutopilotKind::Builtin).then(|| RealAutopilot {
+                kind: self.autopilot,
+                instance: self.autopilot_instance,
+                command: self.autopilot_cmd.clone(),
+                connect_timeout: std::time::Duration::from_secs(60),
+            }),
             ..SimOptions::default()
         }
     }
@@ -545,18 +566,29 @@ pub(crate) fn fly_all(
         ProgressStyle::with_template("{bar:40} {pos}/{len} missions, {elapsed} elapsed, ETA {eta}")
             .expect("a valid template"),
     );
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get());
+    // A real autopilot per worker, each its own instance (its own ports); one the user started
+    // serves one mission at a time.
+    let real = jobs.first().and_then(|(_, o)| o.autopilot.clone());
+    let workers = match &real {
+        Some(autopilot) if autopilot.command.is_none() => 1,
+        _ => std::thread::available_parallelism().map_or(1, |n| n.get()),
+    };
     let next = std::sync::atomic::AtomicUsize::new(0);
     let results = std::sync::Mutex::new(vec![Vec::new(); cells]);
     let failure = std::sync::Mutex::new(None);
     std::thread::scope(|scope| {
-        for _ in 0..workers {
-            scope.spawn(|| loop {
+        for worker in 0..workers {
+            let (next, results, failure, bar, jobs) = (&next, &results, &failure, &bar, &jobs);
+            scope.spawn(move || loop {
                 let index = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 let Some((cell, options)) = jobs.get(index) else {
                     break;
                 };
-                match simulate(model, registry, options) {
+                let mut options = options.clone();
+                if let Some(autopilot) = options.autopilot.as_mut() {
+                    autopilot.instance += worker as u8;
+                }
+                match simulate(model, registry, &options) {
                     Ok(outcome) => results.lock().expect("no worker panics")[*cell].push(outcome),
                     Err(error) => {
                         *failure.lock().expect("no worker panics") =

@@ -14,6 +14,8 @@ use crate::wind::Wind;
 pub trait Body {
     fn position_ned_m(&self) -> Vector3<f64>;
     fn velocity_ned_m_s(&self) -> Vector3<f64>;
+    /// Off every surface.
+    fn is_flying(&self) -> bool;
     /// Integrates `dt_s` up to `time_s` under the wind's force, above the pad as it is then.
     fn advance(
         &mut self,
@@ -41,6 +43,9 @@ impl Body for Multirotor {
     fn velocity_ned_m_s(&self) -> Vector3<f64> {
         Multirotor::velocity_ned_m_s(self)
     }
+    fn is_flying(&self) -> bool {
+        Multirotor::is_flying(self)
+    }
     fn advance(
         &mut self,
         dt_s: f64,
@@ -58,6 +63,9 @@ impl Body for Quadrotor {
     }
     fn velocity_ned_m_s(&self) -> Vector3<f64> {
         Quadrotor::velocity_ned_m_s(self)
+    }
+    fn is_flying(&self) -> bool {
+        Quadrotor::is_flying(self)
     }
     fn advance(
         &mut self,

@@ -392,7 +392,7 @@ pub fn serve(
                 rotors,
                 ..
             } => {
-                let flight_w = flight_power_w(vehicle, wind, rotors, time_s);
+                let flight_w = flight_power_w(vehicle.as_ref(), wind, rotors, time_s);
                 // The companion computer's draw is the runtime's to report, not the world's.
                 battery.drain(flight_w, 0.0, TICK_S).map_err(setup)?;
                 vehicle.touchdown().map(|t| ServedTouchdown {

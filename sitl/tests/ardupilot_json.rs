@@ -14,10 +14,11 @@ use mavlink::{MavConnection, MavHeader};
 use nalgebra::Vector3;
 use sim::quadrotor::{Quadrotor, QuadrotorParams};
 use sim::sensors::{Home, SensorParams, Sensors};
-use sim::tractor::PadState;
+use sim::tractor::{PathKind, Tractor, TractorParams};
 use sim::vehicle::Touchdown;
 use sim::wind::{Wind, WindConfig};
-use sitl::hil::ardupilot_json::ArduPilotJson;
+use sim::world::World;
+use sitl::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
 
 /// Ports 5800 (MAVLink), 14590, 9042 (JSON): no other test's (ArduPilot 1 and 2, PX4 0–9).
 const INSTANCE: u8 = 4;
@@ -80,16 +81,6 @@ fn start_ardupilot() -> Option<ArduPilotProcess> {
     Some(ArduPilotProcess(pid))
 }
 
-/// A pad far away: only the ground is under the body.
-fn far_pad() -> PadState {
-    PadState {
-        centre_ned_m: Vector3::new(1_000.0, 1_000.0, -1.5),
-        yaw_rad: 0.0,
-        velocity_ned_m_s: Vector3::zeros(),
-        half_size_m: 0.75,
-    }
-}
-
 /// What the world thread shares: the truth ArduPilot does not see.
 #[derive(Debug, Default, Clone)]
 struct Truth {
@@ -99,75 +90,65 @@ struct Truth {
     frames: u64,
     resends: u64,
     frame_rate_hz: u16,
+    motors_spinning: bool,
     trace: Vec<(f64, Vector3<f64>)>,
     error: Option<String>,
 }
 
-/// The lockstep loop: each new servo frame steps the world by 1/frame rate and is answered
-/// with the state at the end of the step; a resent frame gets the same answer again.
-fn run_world(mut backend: ArduPilotJson, truth: Arc<Mutex<Truth>>, stop: Arc<AtomicBool>) -> f64 {
-    let mut body = Quadrotor::on_ground(QuadrotorParams::default(), Vector3::zeros()).unwrap();
-    let mut sensors = Sensors::new(SensorParams::default(), Home::default(), 11);
-    let mut wind = Wind::new(
+/// The world ArduPilot flies in: 8 m/s gusts from the east (they push the body west), the
+/// tractor parked with its pad far away, so only the ground is under the body.
+fn world() -> World {
+    let tractor = Tractor::new(
+        PathKind::Straight,
+        TractorParams::default(),
+        [1_000.0, 1_000.0],
+        0.0,
+    )
+    .unwrap()
+    .parked();
+    let wind = Wind::new(
         WindConfig::Gusts {
             speed_m_s: 8.0,
-            // From the east: it pushes the body west.
             direction_from_rad: std::f64::consts::FRAC_PI_2,
         },
         11,
     )
     .unwrap();
-    let pad = far_pad();
+    World::new(tractor, wind)
+}
+
+/// The lockstep loop, one [`ArduPilotVehicle::step`] per servo frame, recording the truth.
+fn run_world(json: ArduPilotJson, truth: Arc<Mutex<Truth>>, stop: Arc<AtomicBool>) -> f64 {
+    let mut world = world();
+    let body = Quadrotor::on_ground(QuadrotorParams::default(), Vector3::zeros()).unwrap();
+    let sensors = Sensors::new(SensorParams::default(), Home::default(), 11);
+    let mut vehicle = ArduPilotVehicle::new(json, body, sensors);
     let wall = Instant::now();
-    let mut time_s = 0.0;
     let mut next_trace_s = 0.0;
-    let fail = |message: String| truth.lock().unwrap().error = Some(message);
     while !stop.load(Ordering::Relaxed) {
-        let packet = match backend.receive_servos(Duration::from_secs(5)) {
-            Ok(packet) => packet,
-            Err(error) => {
-                fail(error.to_string());
-                break;
-            }
-        };
-        if backend.is_resend(&packet) {
-            if let Err(error) = backend.resend_last_state() {
-                fail(error.to_string());
-                break;
-            }
-            truth.lock().unwrap().resends += 1;
-            continue;
-        }
-        let dt_s = packet.step_s();
-        body.set_motor_commands(packet.motor_commands());
-        let position = body.position_ned_m();
-        let force = wind.force_ned_n(time_s, -position.z, body.velocity_ned_m_s());
-        if let Err(error) = body.step(dt_s, time_s + dt_s, force, &pad) {
-            fail(error.to_string());
-            break;
-        }
-        time_s += dt_s;
-        let state = *body.state();
-        let imu = sensors.imu(dt_s, &state);
-        let range = sensors.rangefinder(body.rangefinder_m());
-        if let Err(error) = backend.send_state(time_s, &state, &imu, range) {
-            fail(error.to_string());
+        if let Err(error) = vehicle.step(&mut world) {
+            truth.lock().unwrap().error = Some(error.to_string());
             break;
         }
         let mut t = truth.lock().unwrap();
-        t.time_s = time_s;
-        t.position_ned_m = state.position_ned_m;
-        t.frames += 1;
-        t.frame_rate_hz = packet.frame_rate_hz;
-        if body.touchdowns().len() != t.touchdowns.len() {
-            t.touchdowns = body.touchdowns().to_vec();
+        t.time_s = vehicle.time_s;
+        t.position_ned_m = vehicle.body.position_ned_m();
+        t.frames = vehicle.frames;
+        t.resends = vehicle.resends;
+        t.motors_spinning = vehicle.motors_spinning();
+        if let Some(packet) = &vehicle.last_servos {
+            t.frame_rate_hz = packet.frame_rate_hz;
         }
-        if time_s >= next_trace_s {
-            t.trace.push((time_s, state.position_ned_m));
+        if vehicle.body.touchdowns().len() != t.touchdowns.len() {
+            t.touchdowns = vehicle.body.touchdowns().to_vec();
+        }
+        if vehicle.time_s >= next_trace_s {
+            let sample = (vehicle.time_s, t.position_ned_m);
+            t.trace.push(sample);
             next_trace_s += TRACE_PERIOD_S;
         }
     }
-    time_s / wall.elapsed().as_secs_f64()
+    vehicle.time_s / wall.elapsed().as_secs_f64()
 }
 
 /// A ground station on ArduPilot's first MAVLink server.
@@ -360,10 +341,13 @@ fn ardupilot_takes_off_holds_in_8_m_s_gusts_and_lands_in_our_world() {
         }
     };
     let mut rangefinder_at_hover_m = None;
+    // The world's reading of the servo outputs: the motors turn all through the hold.
+    let mut motors_still_in_hold = 0;
     while snapshot().time_s < hold_from_s + 5.0 {
         assert!(Instant::now() < deadline, "the hold never ended");
         gcs.pump(Duration::from_millis(50));
         rangefinder_at_hover_m = gcs.rangefinder_m.or(rangefinder_at_hover_m);
+        motors_still_in_hold += u32::from(!snapshot().motors_spinning);
     }
     let hold: Vec<Vector3<f64>> = snapshot()
         .trace
@@ -415,6 +399,9 @@ fn ardupilot_takes_off_holds_in_8_m_s_gusts_and_lands_in_our_world() {
         gcs.pump(Duration::from_millis(100));
     }
     let disarmed_at_s = snapshot().time_s;
+    // Disarmed, ArduPilot drives its motors at the still 1000 µs.
+    gcs.pump(Duration::from_millis(100));
+    let motors_spinning_after_disarm = snapshot().motors_spinning;
     stop.store(true, Ordering::Relaxed);
     let t = snapshot();
     let real_time_factor = world.join().unwrap();
@@ -453,9 +440,14 @@ fn ardupilot_takes_off_holds_in_8_m_s_gusts_and_lands_in_our_world() {
         );
     }
     assert!(touchdown.vertical_speed_m_s < 1.5, "{touchdown:?}");
+    assert_eq!(
+        motors_still_in_hold, 0,
+        "snapshots of still motors in the hold"
+    );
     assert!(
         !gcs.armed,
         "still armed {:.1} s after touchdown",
         disarmed_at_s - touchdown.time_s
     );
+    assert!(!motors_spinning_after_disarm, "motors turning after disarm");
 }

@@ -15,8 +15,9 @@ use std::io::ErrorKind;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use sim::quadrotor::BodyState;
-use sim::sensors::ImuSample;
+use sim::quadrotor::{BodyState, Quadrotor};
+use sim::sensors::{ImuSample, Sensors};
+use sim::world::World;
 
 /// ArduPilot instance N sends its servo outputs to this port + 10·N.
 pub const JSON_SERVO_PORT: u16 = 9002;
@@ -32,6 +33,9 @@ pub const NO_RETURN_RANGE_M: f64 = 999.0;
 /// The PWM range ArduPilot's SITL motors span (RCn_MIN, RCn_MAX of its default parameters).
 const PWM_MIN_US: f64 = 1000.0;
 const PWM_SPAN_US: f64 = 1000.0;
+/// What ArduPilot's SITL motors get when still: disarmed, or armed with `MOT_SPIN_ARM = 0`
+/// (its `MOT_PWM_MIN`, the RCn_MIN of its default parameters).
+const PWM_STOPPED_US: u16 = 1000;
 
 /// One frame of ArduPilot's servo outputs.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -126,6 +130,13 @@ impl ServoPacket {
         1.0 / f64::from(self.frame_rate_hz)
     }
 
+    /// Whether any of the motors (channels 1–4) is driven above the still motor's 1000 µs.
+    /// That is all the servo outputs tell: ArduPilot armed with `MOT_SPIN_ARM = 0`, or in the
+    /// instant after arming before its spool-up, sends the same 1000 µs as disarmed.
+    pub fn motors_spinning(&self) -> bool {
+        self.pwm_us.iter().take(4).any(|&pwm| pwm > PWM_STOPPED_US)
+    }
+
     /// Channels 1–4 as motor commands 0–1 in the rotors' order (ArduPilot's quad X: servo
     /// channel k drives motor k): (PWM − 1000 µs) / 1000 µs, saturated. An unused channel
     /// (PWM 0) is a stopped motor.
@@ -166,6 +177,8 @@ pub enum JsonBackendError {
         #[source]
         source: std::io::Error,
     },
+    #[error("ArduPilot JSON: the world: {0}")]
+    World(#[from] sim::world::WorldError),
 }
 
 /// The world's answer to one servo frame: ArduPilot's JSON sensor line, preceded and followed
@@ -368,6 +381,71 @@ impl ArduPilotJson {
             port: self.port,
             source,
         }
+    }
+}
+
+/// ArduPilot flying the world's rigid body over its JSON interface: one lockstep frame at a
+/// time, the world's clock set by the frames ArduPilot asks for.
+pub struct ArduPilotVehicle {
+    pub json: ArduPilotJson,
+    pub body: Quadrotor,
+    pub sensors: Sensors,
+    /// The world's time: the end of the last step taken (the `timestamp` last sent).
+    pub time_s: f64,
+    /// Longest wait for ArduPilot's next servo packet.
+    pub step_timeout: Duration,
+    /// The last servo packet received (a resend included).
+    pub last_servos: Option<ServoPacket>,
+    /// New frames answered (world steps taken), and resent frames answered again.
+    pub frames: u64,
+    pub resends: u64,
+}
+
+impl ArduPilotVehicle {
+    pub fn new(json: ArduPilotJson, body: Quadrotor, sensors: Sensors) -> Self {
+        Self {
+            json,
+            body,
+            sensors,
+            time_s: 0.0,
+            step_timeout: Duration::from_secs(5),
+            last_servos: None,
+            frames: 0,
+            resends: 0,
+        }
+    }
+
+    /// Waits for ArduPilot's next servo frame. A resend of the frame last answered gets the
+    /// same answer again and the world stays where it is; a new frame steps the world by
+    /// 1/frame rate under its motor commands and is answered with the state at the step's end.
+    /// No servo packet within [`Self::step_timeout`] is [`JsonBackendError::Silent`].
+    pub fn step(&mut self, world: &mut World) -> Result<(), JsonBackendError> {
+        let packet = self.json.receive_servos(self.step_timeout)?;
+        if self.json.is_resend(&packet) {
+            self.json.resend_last_state()?;
+            self.resends += 1;
+            self.last_servos = Some(packet);
+            return Ok(());
+        }
+        let step_s = packet.step_s();
+        self.body.set_motor_commands(packet.motor_commands());
+        world.step(self.time_s, step_s, &mut self.body)?;
+        self.time_s += step_s;
+        let state = *self.body.state();
+        let imu = self.sensors.imu(step_s, &state);
+        let range = self.sensors.rangefinder(self.body.rangefinder_m());
+        self.json.send_state(self.time_s, &state, &imu, range)?;
+        self.frames += 1;
+        self.last_servos = Some(packet);
+        Ok(())
+    }
+
+    /// Whether the last servo packet drives any motor: see [`ServoPacket::motors_spinning`]
+    /// (not whether ArduPilot is armed, which its servo outputs cannot tell).
+    pub fn motors_spinning(&self) -> bool {
+        self.last_servos
+            .as_ref()
+            .is_some_and(ServoPacket::motors_spinning)
     }
 }
 

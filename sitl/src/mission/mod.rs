@@ -41,11 +41,17 @@ use sim::stereo_camera::{SimStereoCamera, StereoCameraConfig};
 use sim::tractor::{PathKind, Tractor, TractorParams};
 use sim::vehicle::{Multirotor, VehicleParams};
 use sim::wind::{Wind, WindConfig};
+use sim::world::World;
 use std::time::Instant;
 
+mod autopilot;
 mod options;
 mod world;
 
+use autopilot::Flyer;
+pub use autopilot::{
+    AutopilotKind, AutopilotProcess, RealAutopilot, RealVehicle, REAL_AUTOPILOT_READY_S,
+};
 pub use options::*;
 pub use world::*;
 
@@ -110,12 +116,7 @@ pub fn simulate(
     if realism.pad != PadMotion::STILL {
         tractor = tractor.with_rough_field(realism.pad, options.seed);
     }
-    let mut vehicle =
-        Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(setup)?;
-    if let Some(gimbal) = camera_gimbal(model).map_err(setup)? {
-        vehicle = vehicle.with_gimbal(gimbal);
-    }
-    let mut wind = Wind::new(
+    let wind = Wind::new(
         wind_config(options.wind_speed_m_s, options.wind_kind),
         options.seed ^ 0x5749_4e44,
     )
@@ -139,6 +140,7 @@ pub fn simulate(
         .map(|p| p.duration_s)
         .sum();
     let track = future_track_ne_m(&tractor, watch_s).map_err(setup)?;
+    let mut world = World::new(tractor, wind);
     let hazards =
         HazardField::along_track(options.seed, &track, &track_scatter(&track)).map_err(setup)?;
     let hazards_total = hazards.hazards.len();
@@ -161,27 +163,61 @@ pub fn simulate(
     let rotors = RotorPowerModel::iris(hover_power_w);
     rotors.validate().map_err(setup)?;
 
-    // MAVLink over the loopback, as with PX4 SITL: the autopilot sends to the runtime's port.
-    let link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).map_err(link_error)?;
-    let runtime_addr = link
-        .local_addr()
-        .ok_or_else(|| SimError::Link("the link has no local UDP address".into()))?;
+    let gimbal = camera_gimbal(model).map_err(setup)?;
+    // The vehicle and who flies it; the runtime's MAVLink to its autopilot, as on a drone.
     let telemetry = &realism.telemetry;
-    let mut autopilot = MavlinkAutopilot::bind_local(runtime_addr, !options.real_time)
-        .map_err(link_error)?
-        .with_stream_rates(StreamRates {
-            attitude_hz: telemetry.attitude_rate_hz,
-            position_hz: telemetry.position_rate_hz,
-            distance_hz: telemetry.distance_rate_hz,
-        });
-    let mut estimate = EstimatedTelemetry::new(
-        realism.estimator,
-        realism.rangefinder,
-        telemetry.latency_s,
-        options.seed,
-    );
+    let (mut flyer, link, _autopilot_process) = match &options.autopilot {
+        None => {
+            // MAVLink over the loopback, as with PX4 SITL: the autopilot sends to the
+            // runtime's port.
+            let link =
+                MavlinkLink::bind_local_ephemeral(LinkConfig::default()).map_err(link_error)?;
+            let runtime_addr = link
+                .local_addr()
+                .ok_or_else(|| SimError::Link("the link has no local UDP address".into()))?;
+            let autopilot = MavlinkAutopilot::bind_local(runtime_addr, !options.real_time)
+                .map_err(link_error)?
+                .with_stream_rates(StreamRates {
+                    attitude_hz: telemetry.attitude_rate_hz,
+                    position_hz: telemetry.position_rate_hz,
+                    distance_hz: telemetry.distance_rate_hz,
+                });
+            let mut vehicle =
+                Multirotor::on_ground(VehicleParams::default(), Vector3::zeros()).map_err(setup)?;
+            if let Some(gimbal) = gimbal {
+                vehicle = vehicle.with_gimbal(gimbal);
+            }
+            let estimate = EstimatedTelemetry::new(
+                realism.estimator,
+                realism.rangefinder,
+                telemetry.latency_s,
+                options.seed,
+            );
+            let flyer = Flyer::Builtin {
+                vehicle: Box::new(vehicle),
+                autopilot: Box::new(autopilot),
+                estimate: Box::new(estimate),
+            };
+            (flyer, link, None)
+        }
+        Some(real) => {
+            if gimbal.is_some() {
+                return Err(setup(
+                    "the real autopilots fly no camera gimbal here: set the tracker's camera_mount = \"body\"",
+                ));
+            }
+            let (vehicle, process) = RealVehicle::connect(real, options.seed)?;
+            let link = real.open_link()?;
+            (Flyer::Real(Box::new(vehicle)), link, process)
+        }
+    };
 
-    let plan = mission_plan(model, meeting, pad_height_m);
+    let mut plan = mission_plan(model, meeting, pad_height_m);
+    if options.autopilot.is_some() {
+        // A real autopilot refuses to arm until its estimator has converged on the world's
+        // sensors (PX4 about 16 s, ArduPilot about 42 s).
+        plan.command_timeout_s = plan.command_timeout_s.max(REAL_AUTOPILOT_READY_S);
+    }
     let max_time_s = options.max_time_s.unwrap_or_else(|| {
         let phases = &model.config.mission.phases;
         let count = plan.phase_durations_s.len();
@@ -274,7 +310,6 @@ pub fn simulate(
     let mut tracking_started_s: Option<f64> = None;
     let mut landing_aborts = 0u32;
     let mut last_landing_mode = None;
-    let mut tractor_moving = false;
     let mut next_track_s = 0.0;
     let mut tick = 0u64;
     let mut finished_s = None;
@@ -305,7 +340,9 @@ pub fn simulate(
         }
         let fault_time = tracking_started_s.map(|start| time_s - start);
         let in_window = |window: Option<(f64, f64)>| matches!((window, fault_time), (Some((from, until)), Some(t)) if t >= from && t < until);
-        autopilot.set_link_down(in_window(options.faults.link_loss));
+        if let Flyer::Builtin { autopilot, .. } = &mut flyer {
+            autopilot.set_link_down(in_window(options.faults.link_loss));
+        }
 
         // The runtime's clock: the world's in lockstep; the real-time scheduler's (the one its
         // tasks stamp messages with) on the wall clock.
@@ -328,8 +365,10 @@ pub fn simulate(
                         })
                 });
             if wanted {
-                scene.set_pad_pose(pad_pose(&tractor)).map_err(setup)?;
-                let pose = vehicle.camera_pose();
+                scene
+                    .set_pad_pose(pad_pose(&world.tractor))
+                    .map_err(setup)?;
+                let pose = flyer.camera_pose();
                 // Rendered on other threads during the frame's latency; the loop goes on.
                 match camera.capture_deferred(time_s, &pose, &scene) {
                     Ok(frame) => {
@@ -388,30 +427,46 @@ pub fn simulate(
             }
         }
 
-        // Autopilot → runtime → autopilot: in lockstep, or as the datagrams come.
-        let snapshot = estimate.report(&vehicle.snapshot(time_s, battery.reading()));
-        let t_ns = autopilot.publish(&snapshot).map_err(link_error)?;
-        let lockstep = (!options.real_time).then_some(t_ns);
+        // Autopilot → runtime → autopilot: in lockstep, or as the datagrams come. A real
+        // autopilot streams on its own; the world and it are in lockstep through its
+        // simulator interface.
+        let lockstep = match &mut flyer {
+            Flyer::Builtin {
+                vehicle,
+                autopilot,
+                estimate,
+            } => {
+                let snapshot = estimate.report(&vehicle.snapshot(time_s, battery.reading()));
+                let t_ns = autopilot.publish(&snapshot).map_err(link_error)?;
+                (!options.real_time).then_some(t_ns)
+            }
+            Flyer::Real(_) => None,
+        };
         let step = runner
             .step(runtime_now_s, lockstep)
             .map_err(|error| match error {
                 RunnerError::Scheduler(error) => SimError::Scheduler(error),
                 other => SimError::Link(other.into()),
             })?;
-        let received = match lockstep {
-            Some(t_ns) => autopilot.receive_lockstep(t_ns, LOCKSTEP_TIMEOUT),
-            None => autopilot.receive(),
-        }
-        .map_err(link_error)?;
-        for received in received {
-            let result = vehicle.command(received.command, time_s);
-            if let Some(pending) = received.ack {
-                autopilot.ack(pending, &result).map_err(link_error)?;
+        if let Flyer::Builtin {
+            vehicle, autopilot, ..
+        } = &mut flyer
+        {
+            let received = match lockstep {
+                Some(t_ns) => autopilot.receive_lockstep(t_ns, LOCKSTEP_TIMEOUT),
+                None => autopilot.receive(),
+            }
+            .map_err(link_error)?;
+            for received in received {
+                let result = vehicle.command(received.command, time_s);
+                if let Some(pending) = received.ack {
+                    autopilot.ack(pending, &result).map_err(link_error)?;
+                }
             }
         }
 
         // Where the runtime thinks the pad is, against the truth, while it tracks it.
-        if tracking_started_s.is_some() && vehicle.touchdown().is_none() {
+        if tracking_started_s.is_some() && flyer.touchdown().is_none() {
             if let Some(message) = relative_states.latest() {
                 let relative = &message.value;
                 let fresh = runtime_now_s - relative.estimate.time_s <= LOCALISATION_MAX_AGE_S;
@@ -419,8 +474,8 @@ pub fn simulate(
                     .last_fix_time_s
                     .is_some_and(|fix_s| runtime_now_s - fix_s <= LOCALISATION_MAX_FIX_GAP_S);
                 if fresh && seen {
-                    let pad = tractor.pad();
-                    let truth = vehicle.position_ned_m() - pad.centre_ned_m;
+                    let pad = world.pad();
+                    let truth = flyer.position_ned_m() - pad.centre_ned_m;
                     localisation.add(
                         &relative.estimate.uav_relative_ned_m,
                         &truth,
@@ -466,7 +521,7 @@ pub fn simulate(
                     }
                 }
                 // The tractor drives off once the vehicle is with it.
-                tractor_moving |= *phase >= 1;
+                world.tractor_moving |= *phase >= 1;
             }
         }
         let status = runner.status();
@@ -481,19 +536,19 @@ pub fn simulate(
         }
 
         // Physics.
-        let substeps = (TICK_S / PHYSICS_DT_S).round() as usize;
-        for substep in 0..substeps {
-            let t_s = time_s + substep as f64 * PHYSICS_DT_S;
-            if tractor_moving {
-                tractor.step(PHYSICS_DT_S).map_err(setup)?;
+        match &mut flyer {
+            Flyer::Builtin { vehicle, .. } => {
+                let substeps = (TICK_S / PHYSICS_DT_S).round() as usize;
+                for substep in 0..substeps {
+                    let t_s = time_s + substep as f64 * PHYSICS_DT_S;
+                    world
+                        .step(t_s, PHYSICS_DT_S, vehicle.as_mut())
+                        .map_err(setup)?;
+                }
             }
-            let position = vehicle.position_ned_m();
-            let force = wind.force_ned_n(t_s, -position.z, vehicle.velocity_ned_m_s());
-            vehicle
-                .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
-                .map_err(setup)?;
+            Flyer::Real(real) => real.step_until(&mut world, time_s + TICK_S)?,
         }
-        let flight_w = flight_power_w(&vehicle, &mut wind, &rotors, time_s);
+        let flight_w = flyer.flight_power_w(&mut world.wind, &rotors, time_s);
         // The companion draws what the tasks of the phase in flight cost at their levels.
         let companion_w = runner.companion_power_w();
         if let Err(error) = battery.drain(flight_w, companion_w, TICK_S) {
@@ -519,8 +574,8 @@ pub fn simulate(
             }
         }
         if options.record_track && time_s >= next_track_s {
-            let position = vehicle.position_ned_m();
-            let pose = tractor.pose();
+            let position = flyer.position_ned_m();
+            let pose = world.tractor.pose();
             track.push(TrackSample {
                 time_s,
                 vehicle_ne_m: [position.x, position.y],
@@ -579,7 +634,7 @@ pub fn simulate(
     // The runtime's log (mission events, refused telemetry, camera faults) beside the world's.
     events.extend(log.events.iter().cloned());
     events.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let touchdown = vehicle.touchdown();
+    let touchdown = flyer.touchdown();
     let (flight_energy_wh, companion_energy_wh) = battery.energy_wh();
     let wall_s = wall_start.elapsed().as_secs_f64();
     Ok(SimOutcome {

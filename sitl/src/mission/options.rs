@@ -60,6 +60,9 @@ pub struct SimOptions {
     pub record: Option<SimRecording>,
     /// Told how far the mission is, once a simulated second.
     pub progress: Option<ProgressSink>,
+    /// A real PX4 or ArduPilot flies the world's vehicle (the world its physics backend);
+    /// `None`: the built-in autopilot.
+    pub autopilot: Option<RealAutopilot>,
 }
 
 /// How far a flying mission is.
@@ -119,6 +122,7 @@ impl Default for SimOptions {
             render_threads: 0,
             record: None,
             progress: None,
+            autopilot: None,
         }
     }
 }

@@ -1,6 +1,7 @@
 //! Building the simulated world from the mission: powers, wind, camera, pad, track.
 
 use super::*;
+use sim::world::Body;
 
 /// The rotors' hover power: the config's, or without one the first phase's flight power.
 pub(crate) fn hover_power_w(model: &MissionModel) -> Option<f64> {
@@ -17,7 +18,7 @@ pub(crate) fn hover_power_w(model: &MissionModel) -> Option<f64> {
 /// What the rotors draw now: by the vehicle's airspeed and climb rate while it flies. The wind
 /// is asked every tick, flying or not: its gusts advance with each query.
 pub(crate) fn flight_power_w(
-    vehicle: &Multirotor,
+    vehicle: &impl Body,
     wind: &mut Wind,
     rotors: &RotorPowerModel,
     time_s: f64,

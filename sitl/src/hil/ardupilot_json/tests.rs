@@ -428,3 +428,124 @@ fn answering_before_any_packet_or_binding_a_taken_port_are_errors() {
     );
     assert!(taken.to_string().contains("11032"), "{taken}");
 }
+
+/// A quiet world: the tractor parked far away, no wind; the body on the ground at the origin.
+fn quiet_world_and_vehicle(instance: u8) -> (sim::world::World, ArduPilotVehicle) {
+    use sim::quadrotor::QuadrotorParams;
+    use sim::sensors::{Home, SensorParams};
+    use sim::tractor::{PathKind, Tractor, TractorParams};
+    use sim::wind::{Wind, WindConfig};
+    let tractor = Tractor::new(
+        PathKind::Straight,
+        TractorParams::default(),
+        [1_000.0, 1_000.0],
+        0.0,
+    )
+    .unwrap()
+    .parked();
+    let world = World::new(tractor, Wind::new(WindConfig::Calm, 1).unwrap());
+    let body = Quadrotor::on_ground(QuadrotorParams::default(), Vector3::zeros()).unwrap();
+    let sensors = Sensors::new(SensorParams::default(), Home::default(), 1);
+    let vehicle = ArduPilotVehicle::new(ArduPilotJson::bind(instance).unwrap(), body, sensors);
+    (world, vehicle)
+}
+
+fn timestamp_of(line: &str) -> f64 {
+    parse_json(line.trim()).get("timestamp").numbers()[0]
+}
+
+#[test]
+fn the_vehicle_steps_the_world_once_per_new_frame_and_answers_a_resend_without_stepping() {
+    let (mut world, mut vehicle) = quiet_world_and_vehicle(204);
+    assert_eq!(vehicle.step_timeout, Duration::from_secs(5));
+    assert_eq!(vehicle.time_s, 0.0);
+    assert!(!vehicle.motors_spinning());
+    let ardupilot = fake_ardupilot();
+    let to = ("127.0.0.1", vehicle.json.port());
+
+    // Frame 0 at 400 Hz, motors still (disarmed): one step of 1/400 s, answered at its end.
+    let frame_0 = packet_bytes(18458, 400, 0, &sixteen([1000; 4]));
+    ardupilot.send_to(&frame_0, to).unwrap();
+    vehicle.step(&mut world).unwrap();
+    assert!(
+        (vehicle.time_s - 1.0 / 400.0).abs() < 1e-15,
+        "{}",
+        vehicle.time_s
+    );
+    assert_eq!((vehicle.frames, vehicle.resends), (1, 0));
+    assert!(!vehicle.motors_spinning());
+    let first = read_line(&ardupilot);
+    assert!((timestamp_of(&first) - 1.0 / 400.0).abs() < 1e-9, "{first}");
+    // On the ground with the motors still, the IMU's specific force points up (FRD −z).
+    let accel = parse_json(first.trim())
+        .get("imu")
+        .get("accel_body")
+        .numbers();
+    assert!((accel[2] + 9.8).abs() < 0.5, "{accel:?}");
+
+    // Frame 0 again: the same bytes back, the world not stepped.
+    ardupilot.send_to(&frame_0, to).unwrap();
+    vehicle.step(&mut world).unwrap();
+    assert!(
+        (vehicle.time_s - 1.0 / 400.0).abs() < 1e-15,
+        "{}",
+        vehicle.time_s
+    );
+    assert_eq!((vehicle.frames, vehicle.resends), (1, 1));
+    assert_eq!(read_line(&ardupilot), first);
+
+    // Frame 1, one motor at ArduPilot's spin-when-armed: the next 1/400 s.
+    ardupilot
+        .send_to(
+            &packet_bytes(18458, 400, 1, &sixteen([1000, 1000, 1100, 1000])),
+            to,
+        )
+        .unwrap();
+    vehicle.step(&mut world).unwrap();
+    assert!(
+        (vehicle.time_s - 2.0 / 400.0).abs() < 1e-15,
+        "{}",
+        vehicle.time_s
+    );
+    assert_eq!((vehicle.frames, vehicle.resends), (2, 1));
+    assert!(vehicle.motors_spinning());
+    assert!((timestamp_of(&read_line(&ardupilot)) - 2.0 / 400.0).abs() < 1e-9);
+
+    // A new frame rate is a new step: frame 2 at 1200 Hz advances 1/1200 s.
+    ardupilot
+        .send_to(&packet_bytes(18458, 1200, 2, &sixteen([1000; 4])), to)
+        .unwrap();
+    vehicle.step(&mut world).unwrap();
+    let expected_s = 2.0 / 400.0 + 1.0 / 1200.0;
+    assert!(
+        (vehicle.time_s - expected_s).abs() < 1e-15,
+        "{}",
+        vehicle.time_s
+    );
+    assert!((timestamp_of(&read_line(&ardupilot)) - expected_s).abs() < 1e-9);
+    assert!(!vehicle.motors_spinning());
+
+    // Silence: the named error within the timeout, the world where it was.
+    vehicle.step_timeout = Duration::from_millis(250);
+    let start = Instant::now();
+    let error = vehicle.step(&mut world).unwrap_err();
+    let waited = start.elapsed();
+    assert!(
+        waited >= Duration::from_millis(250) && waited < Duration::from_secs(2),
+        "{waited:?}"
+    );
+    assert!(
+        matches!(
+            error,
+            JsonBackendError::Silent {
+                port: 11042,
+                instance: 204,
+                bad_packets: 0,
+                ..
+            }
+        ),
+        "{error}"
+    );
+    assert!((vehicle.time_s - expected_s).abs() < 1e-15);
+    assert_eq!((vehicle.frames, vehicle.resends), (3, 1));
+}

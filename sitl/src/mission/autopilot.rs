@@ -1,0 +1,331 @@
+//! Who flies the world's vehicle in a simulated mission: the built-in PX4-like autopilot, or a
+//! real PX4 or ArduPilot for which the world is the physics backend (HIL / JSON). With a real
+//! one the runtime talks to it over MAVLink exactly as on a drone, on its own ports.
+
+use std::io::{BufRead, BufReader};
+use std::os::unix::process::CommandExt;
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use runtime::link::{LinkConfig, MavlinkLink};
+use sim::autopilot::MavlinkAutopilot;
+use sim::camera::VehiclePose;
+use sim::estimate::EstimatedTelemetry;
+use sim::power::RotorPowerModel;
+use sim::quadrotor::{Quadrotor, QuadrotorParams};
+use sim::sensors::{Home, SensorParams, Sensors};
+use sim::vehicle::{Multirotor, Touchdown};
+use sim::wind::Wind;
+use sim::world::World;
+
+use crate::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
+use crate::hil::px4::{Px4Hil, Px4Vehicle};
+
+use super::{link_error, SimError};
+
+/// A real autopilot may take this long to be ready to arm (its estimator converging on the
+/// world's sensors: PX4 about 16 s, ArduPilot about 42 s).
+pub const REAL_AUTOPILOT_READY_S: f64 = 90.0;
+
+/// Longest wait for a connected autopilot's answer to one step.
+const STEP_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Which autopilot flies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum AutopilotKind {
+    /// The world's own PX4-like autopilot: fast, deterministic, the default for sweeps.
+    #[default]
+    Builtin,
+    /// PX4 (`none_iris`-style airframe) over HIL on TCP 4560+i.
+    Px4,
+    /// ArduPilot Copter over JSON on UDP 9002+10i.
+    ArduPilot,
+}
+
+impl AutopilotKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Builtin => "builtin",
+            Self::Px4 => "px4",
+            Self::ArduPilot => "ardupilot",
+        }
+    }
+}
+
+impl std::str::FromStr for AutopilotKind {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        match text {
+            "builtin" => Ok(Self::Builtin),
+            "px4" => Ok(Self::Px4),
+            "ardupilot" => Ok(Self::ArduPilot),
+            _ => Err(format!(
+                "expected builtin, px4 or ardupilot, found {text:?}"
+            )),
+        }
+    }
+}
+
+/// A real autopilot for one mission.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RealAutopilot {
+    pub kind: AutopilotKind,
+    /// The instance number: its ports shift by it (PX4: +i, ArduPilot: +10i).
+    pub instance: u8,
+    /// The command that starts it, `{i}` replaced by the instance; `None`: the user started it
+    /// and qosrt waits for it.
+    pub command: Option<String>,
+    /// How long to wait for it to connect.
+    pub connect_timeout: Duration,
+}
+
+impl RealAutopilot {
+    /// The companion computer's MAVLink to it, as on a drone.
+    pub fn mavlink_address(&self) -> String {
+        match self.kind {
+            AutopilotKind::ArduPilot => {
+                format!("tcpout:127.0.0.1:{}", 5760 + 10 * u16::from(self.instance))
+            }
+            _ => format!("udpin:127.0.0.1:{}", 14540 + u16::from(self.instance)),
+        }
+    }
+}
+
+impl RealAutopilot {
+    /// The runtime's link to it. ArduPilot's MAVLink server opens a moment after it starts:
+    /// a refused connection is tried again until [`Self::connect_timeout`].
+    pub fn open_link(&self) -> Result<MavlinkLink, SimError> {
+        let start = std::time::Instant::now();
+        loop {
+            match MavlinkLink::connect(&self.mavlink_address(), LinkConfig::default()) {
+                Ok(link) => return Ok(link),
+                Err(error) if start.elapsed() >= self.connect_timeout => {
+                    return Err(link_error(error))
+                }
+                Err(_) => std::thread::sleep(Duration::from_millis(100)),
+            }
+        }
+    }
+}
+
+/// An autopilot process qosrt started; killed with its process group when dropped (a PX4 still
+/// waiting for its simulator ignores SIGTERM, and ArduPilot waiting for a JSON answer too).
+pub struct AutopilotProcess {
+    child: Child,
+    /// What it printed, for the error when it fails.
+    output: std::sync::Arc<std::sync::Mutex<Vec<String>>>,
+}
+
+impl AutopilotProcess {
+    fn spawn(command: &str, instance: u8) -> Result<Self, SimError> {
+        let command = command.replace("{i}", &instance.to_string());
+        let mut child = Command::new("sh")
+            .args(["-c", &command])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            // Its own process group: the autopilot it starts in the background goes with it.
+            .process_group(0)
+            .spawn()
+            .map_err(|error| {
+                SimError::Setup(
+                    format!("--autopilot-cmd {command:?} did not start: {error}").into(),
+                )
+            })?;
+        let output = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        for stream in [
+            child
+                .stdout
+                .take()
+                .map(|s| Box::new(s) as Box<dyn std::io::Read + Send>),
+            child
+                .stderr
+                .take()
+                .map(|s| Box::new(s) as Box<dyn std::io::Read + Send>),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            let output = output.clone();
+            std::thread::spawn(move || {
+                for line in BufReader::new(stream).lines().map_while(Result::ok) {
+                    if let Ok(mut lines) = output.lock() {
+                        lines.push(line);
+                    }
+                }
+            });
+        }
+        Ok(Self { child, output })
+    }
+
+    fn tail(&self) -> String {
+        self.output
+            .lock()
+            .map(|lines| {
+                lines
+                    .iter()
+                    .rev()
+                    .take(5)
+                    .rev()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(" | ")
+            })
+            .unwrap_or_default()
+    }
+}
+
+impl Drop for AutopilotProcess {
+    fn drop(&mut self) {
+        let group = format!("-{}", self.child.id());
+        let _ = Command::new("kill").args(["-9", "--", &group]).status();
+        let _ = self.child.wait();
+    }
+}
+
+/// A real autopilot flying the world's rigid body.
+pub enum RealVehicle {
+    Px4(Box<Px4Vehicle>),
+    ArduPilot(Box<ArduPilotVehicle>),
+}
+
+impl RealVehicle {
+    /// Listens where the autopilot's simulator interface connects, starts it if told how, and
+    /// waits for it.
+    pub fn connect(
+        autopilot: &RealAutopilot,
+        seed: u64,
+    ) -> Result<(Self, Option<AutopilotProcess>), SimError> {
+        let sensors = Sensors::new(SensorParams::default(), Home::default(), seed);
+        let body = Quadrotor::on_ground(QuadrotorParams::default(), nalgebra::Vector3::zeros())
+            .map_err(super::setup)?;
+        match autopilot.kind {
+            AutopilotKind::Px4 => {
+                let listener = Px4Hil::listen(autopilot.instance).map_err(link_error)?;
+                let process = spawn(autopilot)?;
+                let hil = Px4Hil::accept(&listener, autopilot.instance, autopilot.connect_timeout)
+                    .map_err(|error| failed_start(error, process.as_ref()))?;
+                Ok((
+                    Self::Px4(Box::new(Px4Vehicle::new(hil, body, sensors))),
+                    process,
+                ))
+            }
+            AutopilotKind::ArduPilot => {
+                let json = ArduPilotJson::bind(autopilot.instance).map_err(link_error)?;
+                let process = spawn(autopilot)?;
+                let mut vehicle = ArduPilotVehicle::new(json, body, sensors);
+                // ArduPilot's first servo packet is its connection: it may take a while.
+                vehicle.step_timeout = autopilot.connect_timeout;
+                Ok((Self::ArduPilot(Box::new(vehicle)), process))
+            }
+            AutopilotKind::Builtin => Err(SimError::Setup(
+                "the built-in autopilot is not a real one".into(),
+            )),
+        }
+    }
+
+    /// Steps the world with the autopilot in lockstep until `time_s`.
+    pub fn step_until(&mut self, world: &mut World, time_s: f64) -> Result<(), SimError> {
+        // Half a step of slack: the last step due before `time_s` is taken, none after.
+        match self {
+            Self::Px4(px4) => {
+                while px4.time_s < time_s - 0.5 * Px4Vehicle::STEP_S {
+                    px4.step(world).map_err(link_error)?;
+                }
+            }
+            Self::ArduPilot(ardupilot) => {
+                while ardupilot.time_s < time_s - 1e-9 {
+                    ardupilot.step(world).map_err(link_error)?;
+                    ardupilot.step_timeout = STEP_TIMEOUT;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    pub fn body(&self) -> &Quadrotor {
+        match self {
+            Self::Px4(px4) => &px4.body,
+            Self::ArduPilot(ardupilot) => &ardupilot.body,
+        }
+    }
+
+    pub fn camera_pose(&self) -> VehiclePose {
+        self.body().pose()
+    }
+}
+
+fn spawn(autopilot: &RealAutopilot) -> Result<Option<AutopilotProcess>, SimError> {
+    autopilot
+        .command
+        .as_deref()
+        .map(|command| AutopilotProcess::spawn(command, autopilot.instance))
+        .transpose()
+}
+
+/// An autopilot that did not connect: with what its command printed, if qosrt started it.
+fn failed_start(
+    error: impl std::error::Error + Send + Sync + 'static,
+    process: Option<&AutopilotProcess>,
+) -> SimError {
+    match process {
+        Some(process) => SimError::Link(
+            format!(
+                "{error}; the autopilot's command printed: {}",
+                process.tail()
+            )
+            .into(),
+        ),
+        None => link_error(error),
+    }
+}
+
+/// The world's vehicle in a mission, and who flies it.
+pub(super) enum Flyer {
+    /// The built-in multirotor with its PX4-like autopilot on the loopback, and the estimator
+    /// errors its telemetry carries.
+    Builtin {
+        vehicle: Box<Multirotor>,
+        autopilot: Box<MavlinkAutopilot>,
+        estimate: Box<EstimatedTelemetry>,
+    },
+    Real(Box<RealVehicle>),
+}
+
+impl Flyer {
+    pub(super) fn camera_pose(&self) -> VehiclePose {
+        match self {
+            Self::Builtin { vehicle, .. } => vehicle.camera_pose(),
+            Self::Real(real) => real.camera_pose(),
+        }
+    }
+
+    pub(super) fn position_ned_m(&self) -> nalgebra::Vector3<f64> {
+        match self {
+            Self::Builtin { vehicle, .. } => vehicle.position_ned_m(),
+            Self::Real(real) => real.body().position_ned_m(),
+        }
+    }
+
+    pub(super) fn touchdown(&self) -> Option<Touchdown> {
+        match self {
+            Self::Builtin { vehicle, .. } => vehicle.touchdown(),
+            Self::Real(real) => real.body().touchdown(),
+        }
+    }
+
+    pub(super) fn flight_power_w(
+        &self,
+        wind: &mut Wind,
+        rotors: &RotorPowerModel,
+        time_s: f64,
+    ) -> f64 {
+        match self {
+            Self::Builtin { vehicle, .. } => {
+                super::flight_power_w(vehicle.as_ref(), wind, rotors, time_s)
+            }
+            Self::Real(real) => super::flight_power_w(real.body(), wind, rotors, time_s),
+        }
+    }
+}
