@@ -49,6 +49,18 @@ pub fn run(model: &MissionModel, args: &SimArgs) -> ExitCode {
             "PX4 SITL instance {instance} flies (its pose from udp:127.0.0.1:{}; its MAVLink is its own)",
             sitl::px4_sih::SIH_DISPLAY_PORT + u16::from(instance)
         ),
+        ServeVehicle::Px4Hil { instance } => format!(
+            "the world is PX4's HIL simulator on tcp:127.0.0.1:{} (start PX4 with \
+             `-i {instance} -m none_iris`; qosrt run --mavlink udpin:0.0.0.0:{})",
+            sitl::hil::px4::PX4_SIMULATOR_PORT + u16::from(instance),
+            14540 + u16::from(instance)
+        ),
+        ServeVehicle::ArduPilotJson { instance } => format!(
+            "the world is ArduPilot's JSON physics on udp:127.0.0.1:{} (start ArduCopter with \
+             `-I {instance} -M JSON:127.0.0.1`; qosrt run --mavlink tcpout:127.0.0.1:{})",
+            sitl::hil::ardupilot_json::JSON_SERVO_PORT + 10 * u16::from(instance),
+            5760 + 10 * u16::from(instance)
+        ),
     };
     eprintln!(
         "qosrt sim --serve: {mavlink}{}; the tractor waits at {north_m},{east_m} \

@@ -128,8 +128,13 @@ pub struct SimArgs {
     /// `qosrt run --mavlink udpin:0.0.0.0:14540 --camera rtp-h264:5600 --control`.
     #[arg(long, conflicts_with_all = ["evaluate", "evaluate_hazards", "evaluate_paths", "runs", "svg", "fixed_levels", "tracking_s"])]
     pub serve: bool,
-    /// Who flies the served vehicle: sim (the world's own), or px4-sih[:INSTANCE] (PX4 SITL's
-    /// SIH, whose true pose the world reads on UDP 19410+INSTANCE).
+    /// Who flies the served vehicle: sim (the world's own), px4-sih[:INSTANCE] (PX4 SITL's
+    /// SIH, whose true pose the world reads on UDP 19410+INSTANCE), px4-hil[:INSTANCE] (a PX4
+    /// you started with `-m none_iris`, the world its HIL simulator on TCP 4560+INSTANCE) or
+    /// ardupilot-json[:INSTANCE] (an ArduCopter you started with `-M JSON:127.0.0.1`, the world
+    /// its physics on UDP 9002+10·INSTANCE). A real autopilot's MAVLink is its own: `qosrt run
+    /// --mavlink udpin:0.0.0.0:14540+INSTANCE` (PX4) or `tcpout:127.0.0.1:5760+10·INSTANCE`
+    /// (ArduPilot).
     #[arg(long, default_value = "sim", requires = "serve")]
     pub vehicle: sitl::serve::ServeVehicle,
     /// The UDP port on 127.0.0.1 the simulated autopilot sends MAVLink to.
@@ -451,6 +456,12 @@ pub fn report(outcome: &SimOutcome) -> String {
         "  touchdown error      {}\n",
         fmt_opt(outcome.touchdown_error_m, "m", 3)
     );
+    if let (Some(speed), Some(tilt)) = (
+        outcome.touchdown_vertical_speed_m_s,
+        outcome.touchdown_tilt_deg,
+    ) {
+        out += &format!("  at contact           {speed:.2} m/s down, {tilt:.1}° of lean\n");
+    }
     out += &format!(
         "  time to land         {} (from the start of the landing phase)\n",
         fmt_opt(outcome.time_to_land_s, "s", 1)

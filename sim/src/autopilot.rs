@@ -30,7 +30,9 @@ use messages::{
     attitude, battery_status, distance_sensor, extended_sys_state, gimbal_attitude,
     global_position, heartbeat, local_position, sys_status,
 };
-pub use messages::{decode_command_long, decode_velocity_setpoint, HOME_AMSL_M};
+pub use messages::{
+    decode_command_long, decode_velocity_setpoint, gimbal_device_attitude_status, HOME_AMSL_M,
+};
 
 /// PX4's custom modes (`src/modules/commander/px4_custom_mode.h`), the simulated autopilot's
 /// own table: `custom_mode = sub_mode << 24 | main_mode << 16`.

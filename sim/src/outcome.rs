@@ -40,6 +40,8 @@ pub struct SimOutcome {
     pub touchdown_error_m: Option<f64>,
     /// The vehicle's tilt from the vertical at touchdown, degrees.
     pub touchdown_tilt_deg: Option<f64>,
+    /// Down-positive speed at the touchdown: above about 1 m/s a landing is hard.
+    pub touchdown_vertical_speed_m_s: Option<f64>,
     /// From the start of the landing phase to touchdown.
     pub time_to_land_s: Option<f64>,
     /// From arming to the end of the simulation.
@@ -158,6 +160,9 @@ pub struct SimSummary {
     pub touchdown_error_p50_m: Option<f64>,
     pub touchdown_error_p95_m: Option<f64>,
     pub time_to_land_p50_s: Option<f64>,
+    /// Over every run that touched down (pad or not): how hard and how leaning.
+    pub touchdown_vertical_speed_p95_m_s: Option<f64>,
+    pub touchdown_tilt_p95_deg: Option<f64>,
     pub energy_mean_wh: f64,
     pub companion_energy_mean_wh: f64,
 }
@@ -187,6 +192,10 @@ impl SimSummary {
             .filter_map(|o| o.touchdown_error_m)
             .collect();
         let times: Vec<f64> = successes.iter().filter_map(|o| o.time_to_land_s).collect();
+        let of_touchdowns = |f: &dyn Fn(&SimOutcome) -> Option<f64>| {
+            let values: Vec<f64> = outcomes.iter().filter_map(f).collect();
+            quantile(&values, 0.95)
+        };
         let mean = |f: &dyn Fn(&SimOutcome) -> f64| {
             if runs == 0 {
                 0.0
@@ -204,6 +213,8 @@ impl SimSummary {
             touchdown_error_p50_m: quantile(&errors, 0.5),
             touchdown_error_p95_m: quantile(&errors, 0.95),
             time_to_land_p50_s: quantile(&times, 0.5),
+            touchdown_vertical_speed_p95_m_s: of_touchdowns(&|o| o.touchdown_vertical_speed_m_s),
+            touchdown_tilt_p95_deg: of_touchdowns(&|o| o.touchdown_tilt_deg),
             energy_mean_wh: mean(&|o| o.flight_energy_wh + o.companion_energy_wh),
             companion_energy_mean_wh: mean(&|o| o.companion_energy_wh),
         }

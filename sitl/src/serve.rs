@@ -3,7 +3,7 @@
 //! of a real vehicle:
 //!
 //! - **MAVLink** from the world's autopilot, sent to UDP 127.0.0.1:14540 as PX4 SITL's onboard
-//!   link sends (or, with [`ServeVehicle::Px4Sih`], from the real PX4 itself);
+//!   link sends (or, with a real autopilot, from that autopilot itself: the world sends none);
 //! - **the downward camera** as RTP/H.264 on UDP 5600, as Gazebo's camera plugin streams it
 //!   (feature `gstreamer`; without it the world serves MAVLink only).
 //!
@@ -11,6 +11,18 @@
 //! pose from the SIH display link and renders the camera, the pad and the field around it.
 //! The pad then lies on the ground (SIH's vehicle knows only the ground) and the world judges
 //! the touchdown from PX4's pose.
+//!
+//! With [`ServeVehicle::Px4Hil`] or [`ServeVehicle::ArduPilotJson`] the world is the physics
+//! backend of a real autopilot the user started, as Gazebo is: PX4 with
+//! `../shared/px4-sitl/start -i N -m none_iris` (HIL on TCP 4560+N, its MAVLink on UDP
+//! 14540+N), ArduPilot Copter with `../shared/ardupilot-sitl/start -I N -M JSON:127.0.0.1 -s 100
+//! -P FRAME_TYPE=1 -P RNGFND1_TYPE=100 -P BATT_MONITOR=0 -P ANGLE_MAX=4500 -O
+//! 47.397742,8.545594,488,0` (JSON on UDP 9002+10N, its MAVLink on TCP 5760+10N: an X frame like
+//! the world's body, the rangefinder from the JSON, no battery monitor since the JSON interface
+//! has no battery, PX4's 45° tilt limit to hold in 12 m/s, the world's home, and never pacing
+//! itself: the world sets the pace). The world steps its rigid body in lockstep with the
+//! autopilot, tick by tick on the wall clock, with the pad on the tractor at its real height,
+//! the tractor in the scene, the world's wind, and judges the touchdown from the body's contact.
 //!
 //! The tractor waits at the meeting point and drives off once the vehicle hovers above it
 //! (within [`MEET_RADIUS_M`], at least [`MEET_HEIGHT_M`] above the pad, for [`MEET_DWELL_S`]):
@@ -30,9 +42,12 @@ use sim::tractor::{PadState, PathKind, Tractor, TractorParams};
 use sim::vehicle::{Multirotor, VehicleParams};
 use sim::wind::Wind;
 
+use sim::vehicle::Touchdown;
+use sim::world::World;
+
 use crate::mission::{
-    camera_config, camera_gimbal, flight_power_w, hover_power_w, pad_pose, wind_config, WindKind,
-    PHYSICS_DT_S, TICK_S,
+    camera_config, camera_gimbal, flight_power_w, hover_power_w, pad_pose, wind_config,
+    AutopilotKind, RealAutopilot, RealVehicle, SimError, WindKind, PHYSICS_DT_S, TICK_S,
 };
 use crate::px4_sih::SihListener;
 
@@ -44,10 +59,15 @@ pub const MEET_HEIGHT_M: f64 = 2.0;
 pub const MEET_DWELL_S: f64 = 2.0;
 /// How long the world runs on after the touchdown, for the runtime to see it land and disarm.
 pub const AFTER_TOUCHDOWN_S: f64 = 5.0;
+/// A real autopilot's clock is the world's: the world runs on until it has stopped the motors
+/// for this long, for the runtime to hear it disarmed.
+pub const AFTER_DISARM_S: f64 = 2.0;
 /// A PX4 vehicle counts as airborne above this height, and as touched down below
 /// [`PX4_TOUCHDOWN_HEIGHT_M`].
 const PX4_AIRBORNE_HEIGHT_M: f64 = 1.0;
 const PX4_TOUCHDOWN_HEIGHT_M: f64 = 0.15;
+/// How long the world waits for a real autopilot to connect to it.
+pub const REAL_CONNECT_TIMEOUT: Duration = Duration::from_secs(120);
 
 /// Who flies the vehicle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -56,24 +76,68 @@ pub enum ServeVehicle {
     Simulated,
     /// PX4 SITL (SIH) instance `instance` in `../shared/px4-sitl` or elsewhere.
     Px4Sih { instance: u8 },
+    /// A real PX4 (`none_iris`) instance `instance`, the world its HIL simulator.
+    Px4Hil { instance: u8 },
+    /// A real ArduPilot Copter instance `instance`, the world its JSON physics backend.
+    ArduPilotJson { instance: u8 },
+}
+
+impl ServeVehicle {
+    /// The real autopilot the world is the physics backend of, if any: started by the user,
+    /// waited for up to `connect_timeout`.
+    pub fn real_autopilot(self, connect_timeout: Duration) -> Option<RealAutopilot> {
+        let (kind, instance) = match self {
+            Self::Px4Hil { instance } => (AutopilotKind::Px4, instance),
+            Self::ArduPilotJson { instance } => (AutopilotKind::ArduPilot, instance),
+            Self::Simulated | Self::Px4Sih { .. } => return None,
+        };
+        Some(RealAutopilot {
+            kind,
+            instance,
+            command: None,
+            connect_timeout,
+        })
+    }
+
+    /// Who flies, in words.
+    pub fn describe(self) -> String {
+        match self {
+            Self::Simulated => "simulated".into(),
+            Self::Px4Sih { instance } => format!("PX4 SITL SIH instance {instance}"),
+            Self::Px4Hil { instance } => format!("PX4 SITL HIL instance {instance}"),
+            Self::ArduPilotJson { instance } => format!("ArduPilot SITL JSON instance {instance}"),
+        }
+    }
 }
 
 impl std::str::FromStr for ServeVehicle {
     type Err = String;
 
     fn from_str(text: &str) -> Result<Self, String> {
-        match text.split_once(':') {
-            None if text == "sim" => Ok(Self::Simulated),
-            None if text == "px4-sih" => Ok(Self::Px4Sih { instance: 0 }),
-            Some(("px4-sih", instance)) => instance
+        let (name, instance) = match text.split_once(':') {
+            Some((name, instance)) => (name, Some(instance)),
+            None => (text, None),
+        };
+        let vehicle: fn(u8) -> Self = match name {
+            "sim" if instance.is_none() => return Ok(Self::Simulated),
+            "px4-sih" => |instance| Self::Px4Sih { instance },
+            "px4-hil" => |instance| Self::Px4Hil { instance },
+            "ardupilot-json" => |instance| Self::ArduPilotJson { instance },
+            _ => {
+                return Err(format!(
+                    "expected sim, px4-sih, px4-hil or ardupilot-json (each but sim with an \
+                     optional :INSTANCE), found {text:?}"
+                ))
+            }
+        };
+        match instance {
+            None => Ok(vehicle(0)),
+            Some(instance) => instance
                 .parse::<u8>()
                 .ok()
                 .filter(|i| *i <= 9)
-                .map(|instance| Self::Px4Sih { instance })
-                .ok_or_else(|| format!("px4-sih:{instance}: the instance is 0-9")),
-            _ => Err(format!(
-                "expected sim, px4-sih or px4-sih:INSTANCE, found {text:?}"
-            )),
+                .map(vehicle)
+                .ok_or_else(|| format!("{name}:{instance}: the instance is 0-9")),
         }
     }
 }
@@ -121,6 +185,8 @@ pub enum ServeError {
     Px4Sih(#[from] crate::px4_sih::Px4SihError),
     #[error("simulated autopilot: {0}")]
     Autopilot(#[from] sim::autopilot::AutopilotError),
+    #[error("real autopilot: {0}")]
+    Real(#[from] SimError),
     #[error(
         "the video stream needs a qosrt built with --features gstreamer (or serve without video)"
     )]
@@ -172,16 +238,17 @@ enum Flyer {
     Simulated {
         vehicle: Box<Multirotor>,
         autopilot: Box<MavlinkAutopilot>,
-        wind: Box<Wind>,
         battery: SimBattery,
         rotors: RotorPowerModel,
     },
-    Px4 {
+    Px4Sih {
         listener: SihListener,
         airborne: bool,
         previous_down_m: Option<f64>,
         touchdown: Option<ServedTouchdown>,
     },
+    /// A real autopilot flying the world's rigid body.
+    Real(Box<RealVehicle>),
 }
 
 /// Serves the world until the vehicle has landed, `max_time_s` passes or `stop` is set;
@@ -192,18 +259,20 @@ pub fn serve(
     stop: &AtomicBool,
     mut on_truth: impl FnMut(&Truth, Option<&ServedTouchdown>),
 ) -> Result<ServeOutcome, ServeError> {
-    let px4 = matches!(options.vehicle, ServeVehicle::Px4Sih { .. });
-    // SIH's vehicle knows only the ground: its pad lies on it.
+    let sih = matches!(options.vehicle, ServeVehicle::Px4Sih { .. });
+    let real = options.vehicle.real_autopilot(REAL_CONNECT_TIMEOUT);
+    // SIH's vehicle knows only the ground: its pad lies on it. The world's own vehicle and the
+    // real autopilots' rigid body land on the pad where it is, on the tractor.
     let tractor_params = TractorParams {
         speed_m_s: options.platform_speed_m_s,
-        pad_height_m: if px4 {
+        pad_height_m: if sih {
             0.0
         } else {
             TractorParams::default().pad_height_m
         },
         ..TractorParams::default()
     };
-    let mut tractor = Tractor::new(
+    let tractor = Tractor::new(
         options.path,
         tractor_params,
         options.meeting_point_ne_m,
@@ -211,8 +280,14 @@ pub fn serve(
     )
     .map_err(setup)?
     .parked();
+    let wind = Wind::new(
+        wind_config(options.wind_speed_m_s, options.wind_kind),
+        options.seed ^ 0x5749_4e44,
+    )
+    .map_err(setup)?;
+    let mut world = World::new(tractor, wind);
     let mut scene = SimScene::new(options.seed);
-    if !px4 {
+    if !sih {
         scene = scene
             .with_tractor_body(TractorBody::default())
             .map_err(setup)?;
@@ -225,10 +300,16 @@ pub fn serve(
     );
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(setup)?;
     let gimbal = camera_gimbal(model).map_err(setup)?;
-    if px4 && gimbal.is_some() {
+    if sih && gimbal.is_some() {
         // SIH streams PX4's own telemetry: no gimbal reports the camera's attitude.
         return Err(setup(
             "PX4 SIH flies no camera gimbal: set the tracker's camera_mount = \"body\"",
+        ));
+    }
+    if real.is_some() && gimbal.is_some() {
+        // The real autopilots' telemetry reports no gimbal here.
+        return Err(setup(
+            "the real autopilots fly no camera gimbal here: set the tracker's camera_mount = \"body\"",
         ));
     }
     let mut video = open_video(options.video_port, width_px, height_px, rate_fps)?;
@@ -256,23 +337,29 @@ pub fn serve(
                     }
                 }),
                 autopilot: Box::new(MavlinkAutopilot::bind_local(options.mavlink_addr, false)?),
-                wind: Box::new(
-                    Wind::new(
-                        wind_config(options.wind_speed_m_s, options.wind_kind),
-                        options.seed ^ 0x5749_4e44,
-                    )
-                    .map_err(setup)?,
-                ),
                 battery: SimBattery::new(pack),
                 rotors,
             }
         }
-        ServeVehicle::Px4Sih { instance } => Flyer::Px4 {
+        ServeVehicle::Px4Sih { instance } => Flyer::Px4Sih {
             listener: SihListener::bind(instance)?,
             airborne: false,
             previous_down_m: None,
             touchdown: None,
         },
+        ServeVehicle::Px4Hil { .. } | ServeVehicle::ArduPilotJson { .. } => {
+            let real = real.as_ref().expect("a real autopilot");
+            // The user started it: no process of ours to keep.
+            let (mut vehicle, _no_process) = RealVehicle::connect(real, options.seed)?;
+            if let RealVehicle::ArduPilot(ardupilot) = &mut vehicle {
+                // ArduPilot's first servo packet is its connection: waited for before the
+                // world's clock starts, which then does not race to catch up with the wait.
+                ardupilot
+                    .step(&mut world)
+                    .map_err(|error| SimError::Link(error.into()))?;
+            }
+            Flyer::Real(Box::new(vehicle))
+        }
     };
 
     let start = Instant::now();
@@ -280,9 +367,9 @@ pub fn serve(
     let mut late_ticks = 0u64;
     let mut frames_rendered = 0u64;
     let mut next_truth_s = 0.0;
-    let mut tractor_moving = false;
     let mut above_since_s: Option<f64> = None;
     let mut touchdown_seen: Option<ServedTouchdown> = None;
+    let mut motors_stopped_since_s: Option<f64> = None;
     let end = loop {
         let time_s = tick as f64 * TICK_S;
         if stop.load(Ordering::SeqCst) {
@@ -291,7 +378,7 @@ pub fn serve(
         if time_s > options.max_time_s {
             break format!("time limit of {:.0} s reached", options.max_time_s);
         }
-        let pad = tractor.pad();
+        let pad = world.pad();
         // The vehicle's pose now, and its commands.
         let pose = match &mut flyer {
             Flyer::Simulated {
@@ -305,7 +392,7 @@ pub fn serve(
                 // The camera's pose (the gimbal's, where it hangs in one); the same position.
                 Some(vehicle.camera_pose())
             }
-            Flyer::Px4 {
+            Flyer::Px4Sih {
                 listener,
                 airborne,
                 previous_down_m,
@@ -327,6 +414,8 @@ pub fn serve(
                 }
                 pose
             }
+            // The body's camera; its commands reach the autopilot, not the world.
+            Flyer::Real(real) => Some(real.camera_pose()),
         };
         let Some(pose) = pose else {
             // PX4 has not spoken yet: nothing to render from.
@@ -343,10 +432,13 @@ pub fn serve(
         } else {
             None
         };
-        tractor_moving |= above_since_s.is_some_and(|since_s| time_s - since_s >= MEET_DWELL_S);
+        world.tractor_moving |=
+            above_since_s.is_some_and(|since_s| time_s - since_s >= MEET_DWELL_S);
 
         if camera.is_due(time_s) {
-            scene.set_pad_pose(pad_pose(&tractor)).map_err(setup)?;
+            scene
+                .set_pad_pose(pad_pose(&world.tractor))
+                .map_err(setup)?;
             match camera.capture_frame(time_s, &pose, &scene) {
                 Ok(frame) => {
                     frames_rendered += 1;
@@ -359,57 +451,57 @@ pub fn serve(
             }
         }
 
-        // Physics (the simulated vehicle), the tractor, the touchdown.
-        for substep in 0..(TICK_S / PHYSICS_DT_S).round() as usize {
-            let t_s = time_s + substep as f64 * PHYSICS_DT_S;
-            if tractor_moving {
-                tractor.step(PHYSICS_DT_S).map_err(setup)?;
-            }
-            if let Flyer::Simulated {
-                vehicle,
-                wind,
-                autopilot,
-                ..
-            } = &mut flyer
-            {
-                // A real autopilot acts on a setpoint as it arrives, not on the next 50 Hz tick.
-                if substep > 0 {
-                    pace_to(start, t_s);
-                    apply_commands(vehicle, autopilot, t_s)?;
+        // Physics: the world's one step (the tractor, the wind, the body), to the tick's end.
+        let substeps = (TICK_S / PHYSICS_DT_S).round() as usize;
+        match &mut flyer {
+            Flyer::Simulated {
+                vehicle, autopilot, ..
+            } => {
+                for substep in 0..substeps {
+                    let t_s = time_s + substep as f64 * PHYSICS_DT_S;
+                    // A real autopilot acts on a setpoint as it arrives, not on the next 50 Hz
+                    // tick.
+                    if substep > 0 {
+                        pace_to(start, t_s);
+                        apply_commands(vehicle, autopilot, t_s)?;
+                    }
+                    world
+                        .step(t_s, PHYSICS_DT_S, vehicle.as_mut())
+                        .map_err(setup)?;
                 }
-                let position = vehicle.position_ned_m();
-                let force = wind.force_ned_n(t_s, -position.z, vehicle.velocity_ned_m_s());
-                vehicle
-                    .step(PHYSICS_DT_S, t_s + PHYSICS_DT_S, force, &tractor.pad())
-                    .map_err(setup)?;
             }
+            // SIH moves its own vehicle: the world moves only the tractor.
+            Flyer::Px4Sih { .. } => {
+                if world.tractor_moving {
+                    for _ in 0..substeps {
+                        world.tractor.step(PHYSICS_DT_S).map_err(setup)?;
+                    }
+                }
+            }
+            // In lockstep with the autopilot: its steps up to the tick's end.
+            Flyer::Real(real) => real.step_until(&mut world, time_s + TICK_S)?,
         }
         let touchdown = match &mut flyer {
             Flyer::Simulated {
                 vehicle,
-                wind,
                 battery,
                 rotors,
                 ..
             } => {
-                let flight_w = flight_power_w(vehicle.as_ref(), wind, rotors, time_s);
+                let flight_w = flight_power_w(vehicle.as_ref(), &mut world.wind, rotors, time_s);
                 // The companion computer's draw is the runtime's to report, not the world's.
                 battery.drain(flight_w, 0.0, TICK_S).map_err(setup)?;
-                vehicle.touchdown().map(|t| ServedTouchdown {
-                    time_s: t.time_s,
-                    on_pad: t.on_pad,
-                    horizontal_error_m: t.horizontal_error_m,
-                    vertical_speed_m_s: t.vertical_speed_m_s,
-                    tilt_deg: t.tilt_deg,
-                })
+                vehicle.touchdown().map(ServedTouchdown::from)
             }
-            Flyer::Px4 { touchdown, .. } => *touchdown,
+            Flyer::Px4Sih { touchdown, .. } => *touchdown,
+            // The body's real contact with the pad or the ground.
+            Flyer::Real(real) => real.body().touchdown().map(ServedTouchdown::from),
         };
         let truth = Truth {
             time_s,
             vehicle_ned_m: pose.position_ned_m.into(),
-            pad_ned_m: tractor.pad().centre_ned_m.into(),
-            tractor_moving,
+            pad_ned_m: world.pad().centre_ned_m.into(),
+            tractor_moving: world.tractor_moving,
         };
         if touchdown.is_some() && touchdown_seen.is_none() {
             touchdown_seen = touchdown;
@@ -418,8 +510,20 @@ pub fn serve(
             on_truth(&truth, None);
             next_truth_s += 1.0;
         }
+        // The world's own vehicle needs no world to disarm; a real autopilot does.
+        let motors_stopped = match &flyer {
+            Flyer::Real(real) => !motors_running(real),
+            Flyer::Simulated { .. } | Flyer::Px4Sih { .. } => true,
+        };
+        motors_stopped_since_s = if motors_stopped {
+            motors_stopped_since_s.or(Some(time_s))
+        } else {
+            None
+        };
         if let Some(landed) = touchdown_seen {
-            if time_s - landed.time_s >= AFTER_TOUCHDOWN_S {
+            if time_s - landed.time_s >= AFTER_TOUCHDOWN_S
+                && motors_stopped_since_s.is_some_and(|since_s| time_s - since_s >= AFTER_DISARM_S)
+            {
                 break "landed".to_string();
             }
         }
@@ -431,10 +535,7 @@ pub fn serve(
     };
     let (frames_sent, video_latency_ms) = video_stats(&video);
     Ok(ServeOutcome {
-        vehicle: match options.vehicle {
-            ServeVehicle::Simulated => "simulated".into(),
-            ServeVehicle::Px4Sih { instance } => format!("PX4 SITL SIH instance {instance}"),
-        },
+        vehicle: options.vehicle.describe(),
         touchdown: touchdown_seen,
         landed_on_pad: touchdown_seen.is_some_and(|t| t.on_pad),
         time_s: tick as f64 * TICK_S,
@@ -444,6 +545,27 @@ pub fn serve(
         late_ticks,
         end,
     })
+}
+
+/// Whether the real autopilot drives its motors (PX4: armed; ArduPilot: any motor spinning,
+/// all its servo outputs tell).
+fn motors_running(real: &RealVehicle) -> bool {
+    match real {
+        RealVehicle::Px4(px4) => px4.last_commands.as_ref().is_some_and(|c| c.armed),
+        RealVehicle::ArduPilot(ardupilot) => ardupilot.motors_spinning(),
+    }
+}
+
+impl From<Touchdown> for ServedTouchdown {
+    fn from(t: Touchdown) -> Self {
+        Self {
+            time_s: t.time_s,
+            on_pad: t.on_pad,
+            horizontal_error_m: t.horizontal_error_m,
+            vertical_speed_m_s: t.vertical_speed_m_s,
+            tilt_deg: t.tilt_deg,
+        }
+    }
 }
 
 /// A touchdown on the ground under PX4's vehicle, against the pad lying there.

@@ -20,7 +20,7 @@ use sim::wind::{Wind, WindConfig};
 use sim::world::World;
 use sitl::hil::px4::{Px4Hil, Px4Vehicle};
 
-const INSTANCE: u8 = 6;
+const INSTANCE: u8 = 5;
 
 struct Px4Process(u32);
 

@@ -12,6 +12,9 @@ pub struct RunRecord {
     /// The vehicle's tilt at touchdown (absent from shards written before it was recorded).
     #[serde(default)]
     pub touchdown_tilt_deg: Option<f64>,
+    /// Down-positive speed at touchdown (absent from shards written before it was recorded).
+    #[serde(default)]
+    pub touchdown_vertical_speed_m_s: Option<f64>,
     pub time_to_land_s: Option<f64>,
     pub mission_time_s: f64,
     pub flight_energy_wh: f64,
@@ -27,6 +30,7 @@ impl From<&SimOutcome> for RunRecord {
             touched_down: o.touched_down,
             touchdown_error_m: o.touchdown_error_m,
             touchdown_tilt_deg: o.touchdown_tilt_deg,
+            touchdown_vertical_speed_m_s: o.touchdown_vertical_speed_m_s,
             time_to_land_s: o.time_to_land_s,
             mission_time_s: o.mission_time_s,
             flight_energy_wh: o.flight_energy_wh,
@@ -45,6 +49,7 @@ impl RunRecord {
             touched_down: self.touched_down,
             touchdown_error_m: self.touchdown_error_m,
             touchdown_tilt_deg: self.touchdown_tilt_deg,
+            touchdown_vertical_speed_m_s: self.touchdown_vertical_speed_m_s,
             time_to_land_s: self.time_to_land_s,
             mission_time_s: self.mission_time_s,
             flight_energy_wh: self.flight_energy_wh,

@@ -403,6 +403,14 @@ pub struct Evaluation {
     /// Every cell flies each of these.
     pub seeds: Vec<u64>,
     pub cells: Vec<Cell>,
+    /// Who flew the vehicle: builtin, px4 or ardupilot (shards from before it was recorded:
+    /// the built-in autopilot).
+    #[serde(default = "builtin_autopilot")]
+    pub autopilot: String,
+}
+
+fn builtin_autopilot() -> String {
+    sitl::mission::AutopilotKind::Builtin.name().to_string()
 }
 
 impl Evaluation {
@@ -440,6 +448,12 @@ impl Evaluation {
             ))
         } else if self.seeds != other.seeds {
             Some(("the seeds (--seed, --runs)", seeds(self), seeds(other)))
+        } else if self.autopilot != other.autopilot {
+            Some((
+                "the autopilot (--autopilot)",
+                self.autopilot.clone(),
+                other.autopilot.clone(),
+            ))
         } else if self.cells != other.cells {
             Some((
                 "the grid's cells (--worlds, --rates, --winds, --paths, --ideal)",

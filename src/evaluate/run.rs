@@ -70,6 +70,7 @@ pub fn run(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> E
         fixed_levels: args.fixed_levels.clone(),
         seeds: (args.seed..=last_seed).collect(),
         cells,
+        autopilot: args.autopilot.name().to_string(),
     };
     let shard = args.shard.unwrap_or(Shard::WHOLE);
     let jobs: Vec<(usize, SimOptions)> = shard_jobs(evaluation.cells.len(), runs, shard)
@@ -80,7 +81,9 @@ pub fn run(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> E
                 &evaluation.cells[cell],
                 evaluation.seeds[seed],
             );
-            (cell, options)
+            // The autopilot the arguments name (its instance and command).
+            let autopilot = args.options(evaluation.seeds[seed]).autopilot;
+            (cell, SimOptions { autopilot, ..options })
         })
         .collect();
     eprintln!(
@@ -159,7 +162,7 @@ pub fn run_merge(args: &SimArgs) -> ExitCode {
 fn report(merged: &Merged, args: &SimArgs) -> ExitCode {
     let rows = rows(merged);
     if let Some(path) = &args.csv {
-        if let Err(error) = std::fs::write(path, csv(&rows)) {
+        if let Err(error) = std::fs::write(path, csv(&merged.evaluation.autopilot, &rows)) {
             eprintln!("error: cannot write {}: {error}", path.display());
             return ExitCode::FAILURE;
         }

@@ -16,6 +16,8 @@ pub struct Row {
     pub touchdown_error_p50_m: Option<f64>,
     pub touchdown_error_p95_m: Option<f64>,
     pub time_to_land_p50_s: Option<f64>,
+    pub touchdown_vertical_speed_p95_m_s: Option<f64>,
+    pub touchdown_tilt_p95_deg: Option<f64>,
     pub energy_mean_wh: f64,
     pub companion_energy_mean_wh: f64,
     pub landing_aborts_mean: f64,
@@ -38,6 +40,8 @@ impl Row {
             touchdown_error_p50_m: summary.touchdown_error_p50_m,
             touchdown_error_p95_m: summary.touchdown_error_p95_m,
             time_to_land_p50_s: summary.time_to_land_p50_s,
+            touchdown_vertical_speed_p95_m_s: summary.touchdown_vertical_speed_p95_m_s,
+            touchdown_tilt_p95_deg: summary.touchdown_tilt_p95_deg,
             energy_mean_wh: summary.energy_mean_wh,
             companion_energy_mean_wh: summary.companion_energy_mean_wh,
             landing_aborts_mean: if runs.is_empty() {
@@ -69,17 +73,21 @@ pub fn table(evaluation: &Evaluation, rows: &[Row]) -> String {
         _ => "no seeds".into(),
     };
     let mut out = format!(
-        "{seeds}, {} s of tracking, {}, config {}\n\n",
+        "{seeds}, {} s of tracking, {}, config {}, autopilot {}\n\n",
         evaluation.tracking_s,
         plural(evaluation.cells.len(), "cell"),
-        evaluation.config_path
+        evaluation.config_path,
+        evaluation.autopilot
     );
-    out += "| world | marker rate (fps) | wind (m/s) | wind kind | path | tractor (m/s) | success | touchdown error p50 / p95 (m) | time to land p50 (s) | energy (Wh) | of which companion (Wh) | landing aborts (mean) |\n";
-    out += "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
+    out += "| autopilot | world | marker rate (fps) | wind (m/s) | wind kind | path | tractor (m/s) | success | touchdown error p50 / p95 (m) | vertical speed p95 (m/s) | tilt p95 (°) | time to land p50 (s) | energy (Wh) | of which companion (Wh) | landing aborts (mean) |\n";
+    out += "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
     let metres = |v: Option<f64>| v.map_or_else(|| "—".into(), |v| format!("{v:.3}"));
+    let hundredths = |v: Option<f64>| v.map_or_else(|| "—".into(), |v| format!("{v:.2}"));
+    let tenths = |v: Option<f64>| v.map_or_else(|| "—".into(), |v| format!("{v:.1}"));
     for r in rows {
         out += &format!(
-            "| {} | {} | {} | {} | {} | {} | {:.0} % | {} / {} | {} | {:.2} | {:.3} | {:.2} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {:.0} % | {} / {} | {} | {} | {} | {:.2} | {:.3} | {:.2} |\n",
+            evaluation.autopilot,
             r.world,
             r.rate_fps,
             r.wind_m_s,
@@ -89,8 +97,9 @@ pub fn table(evaluation: &Evaluation, rows: &[Row]) -> String {
             100.0 * r.success_rate,
             metres(r.touchdown_error_p50_m),
             metres(r.touchdown_error_p95_m),
-            r.time_to_land_p50_s
-                .map_or_else(|| "—".into(), |v| format!("{v:.1}")),
+            hundredths(r.touchdown_vertical_speed_p95_m_s),
+            tenths(r.touchdown_tilt_p95_deg),
+            tenths(r.time_to_land_p50_s),
             r.energy_mean_wh,
             r.companion_energy_mean_wh,
             r.landing_aborts_mean
@@ -100,16 +109,17 @@ pub fn table(evaluation: &Evaluation, rows: &[Row]) -> String {
 }
 
 /// The CSV columns, one row per cell.
-pub const CSV_HEADER: &str = "world,rate_fps,wind_m_s,wind_kind,path,tractor_speed_m_s,runs,success_rate,touchdown_error_p50_m,touchdown_error_p95_m,time_to_land_p50_s,energy_mean_wh,companion_energy_mean_wh,landing_aborts_mean";
+pub const CSV_HEADER: &str = "autopilot,world,rate_fps,wind_m_s,wind_kind,path,tractor_speed_m_s,runs,success_rate,touchdown_error_p50_m,touchdown_error_p95_m,touchdown_vertical_speed_p95_m_s,touchdown_tilt_p95_deg,time_to_land_p50_s,energy_mean_wh,companion_energy_mean_wh,landing_aborts_mean";
 
 /// The table as CSV (RFC 4180): a header line, then one row per cell; numbers in full
 /// precision, a statistic with no runs to it empty.
-pub fn csv(rows: &[Row]) -> String {
+pub fn csv(autopilot: &str, rows: &[Row]) -> String {
     let number = |v: f64| v.to_string();
     let optional = |v: Option<f64>| v.map_or_else(String::new, |v| v.to_string());
     let mut out = format!("{CSV_HEADER}\r\n");
     for r in rows {
         let fields = [
+            autopilot.to_string(),
             r.world.to_string(),
             number(r.rate_fps),
             number(r.wind_m_s),
@@ -120,6 +130,8 @@ pub fn csv(rows: &[Row]) -> String {
             number(r.success_rate),
             optional(r.touchdown_error_p50_m),
             optional(r.touchdown_error_p95_m),
+            optional(r.touchdown_vertical_speed_p95_m_s),
+            optional(r.touchdown_tilt_p95_deg),
             optional(r.time_to_land_p50_s),
             number(r.energy_mean_wh),
             number(r.companion_energy_mean_wh),

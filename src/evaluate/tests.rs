@@ -57,6 +57,7 @@ fn evaluation(cells: Vec<Cell>, seeds: Vec<u64>) -> Evaluation {
         fixed_levels: vec![("hazard".into(), 2.0)],
         seeds,
         cells,
+        autopilot: "builtin".into(),
     }
 }
 
@@ -402,7 +403,10 @@ fn merged_shards_give_the_summaries_of_all_outcomes() {
         assert!(rows
             .iter()
             .any(|r| r.success_rate > 0.0 && r.success_rate < 1.0));
-        tables.push((table(&merged.evaluation, &rows), csv(&rows)));
+        tables.push((
+            table(&merged.evaluation, &rows),
+            csv(&merged.evaluation.autopilot, &rows),
+        ));
     }
     // Every split prints the same table and CSV as the whole.
     assert!(tables.iter().all(|t| *t == tables[0]));
@@ -568,6 +572,7 @@ fn csv_has_the_columns_and_quotes_what_needs_it() {
             touched_down: false,
             touchdown_error_m: None,
             touchdown_tilt_deg: None,
+            touchdown_vertical_speed_m_s: None,
             time_to_land_s: None,
             mission_time_s: 300.0,
             flight_energy_wh: 9.0,
@@ -580,6 +585,7 @@ fn csv_has_the_columns_and_quotes_what_needs_it() {
             touched_down: true,
             touchdown_error_m: Some(1.5),
             touchdown_tilt_deg: Some(12.0),
+            touchdown_vertical_speed_m_s: Some(0.8),
             time_to_land_s: Some(20.0),
             mission_time_s: 90.0,
             flight_energy_wh: 2.0,
@@ -587,15 +593,16 @@ fn csv_has_the_columns_and_quotes_what_needs_it() {
             landing_aborts: 0,
         },
     ];
-    let text = csv(&[Row::of(&cell, &runs)]);
+    let text = csv("builtin", &[Row::of(&cell, &runs)]);
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(lines.len(), 2);
     assert_eq!(lines[0], CSV_HEADER);
-    assert_eq!(lines[0].split(',').count(), 14);
-    // No landing on the pad: no touchdown statistics, empty fields.
+    assert_eq!(lines[0].split(',').count(), 17);
+    // No landing on the pad: no touchdown error or time, empty fields; the one run that
+    // touched down (off the pad) gives how hard and how leaning.
     assert_eq!(
         lines[1],
-        "realistic,2,8,gusts,straight,1.5,2,0,,,,5.6875,0.1875,1.5"
+        "builtin,realistic,2,8,gusts,straight,1.5,2,0,,,0.8,12,,5.6875,0.1875,1.5"
     );
 }
 
@@ -606,6 +613,7 @@ fn a_run_record_without_the_touchdown_tilt_reads_as_none() {
         "touchdown_error_m": 0.05, "time_to_land_s": 20.0, "mission_time_s": 90.0,
         "flight_energy_wh": 2.0, "companion_energy_wh": 0.1, "landing_aborts": 0}"#;
     let record: RunRecord = serde_json::from_str(text).unwrap();
+    assert_eq!(record.touchdown_vertical_speed_m_s, None);
     assert_eq!(record.touchdown_tilt_deg, None);
     assert_eq!(record.touchdown_error_m, Some(0.05));
 }

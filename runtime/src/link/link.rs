@@ -34,6 +34,9 @@ use nalgebra::Vector3;
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
+/// MAVLink's component id of a gimbal device (MAV_COMP_ID_GIMBAL).
+pub const GIMBAL_COMPONENT_ID: u8 = 154;
+
 /// Upper bound on datagrams drained by one `poll`, so a flood cannot starve the mission loop.
 const MAX_DATAGRAMS_PER_POLL: usize = 10_000;
 
@@ -421,13 +424,18 @@ impl MavlinkLink {
                     }
                 }
             }
-            if self.config.target_system_id.map(u32::from) != Some(header.system_id)
-                || self.config.target_component_id != header.component_id
+            let of_vehicle = self.config.target_system_id.map(u32::from) == Some(header.system_id);
+            // A MAVLink gimbal device of the vehicle reports its attitude itself (component
+            // MAV_COMP_ID_GIMBAL); everything else comes from the autopilot.
+            let from_gimbal = of_vehicle
+                && header.component_id == GIMBAL_COMPONENT_ID
+                && matches!(message, MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(_));
+            if !from_gimbal && !(of_vehicle && self.config.target_component_id == header.component_id)
             {
                 self.stats.ignored += 1;
                 continue;
             }
-            from_autopilot = true;
+            from_autopilot |= !from_gimbal;
             self.stats.messages_received += 1;
             *self
                 .received_by_type

@@ -11,6 +11,7 @@ pub mod mapping;
 pub use connection::{ConnectionSpec, Incoming, ReplayFeed};
 pub use link::{
     FailsafeAction, LinkCapture, LinkConfig, LinkStats, LinkStatus, LinkUpdate, MavlinkLink, Sent,
+    GIMBAL_COMPONENT_ID,
 };
 pub use mapping::{
     AckResult, AutopilotKind, AutopilotMode, AutopilotStatus, CommandAck, SetpointSequencer,

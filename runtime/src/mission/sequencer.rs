@@ -93,6 +93,9 @@ pub struct MissionPlan {
     pub command_retry_s: f64,
     /// Setpoints must stream this long before offboard is requested (PX4 needs > 2 Hz).
     pub offboard_preamble_s: f64,
+    /// After the landing task's touchdown, the vehicle rides with the pad for at most this
+    /// long waiting for the autopilot's land detector before the autopilot's land mode.
+    pub touchdown_confirm_s: f64,
     /// Command the vehicle (`--control`); without it the sequencer only follows the flight.
     pub control: bool,
     /// A landing task steers the last phase; without one (no camera) the last phase lands
@@ -132,6 +135,7 @@ impl MissionPlan {
             command_timeout_s: 30.0,
             command_retry_s: 1.0,
             offboard_preamble_s: 0.5,
+            touchdown_confirm_s: 2.0,
             control: true,
             vision_landing: true,
             only_phase: None,
@@ -196,6 +200,8 @@ pub struct MissionSequencer {
     guided_sent_s: f64,
     /// PX4 has reported AUTO.TAKEOFF since the take-off was sent.
     takeoff_mode_seen: bool,
+    /// When the landing task last said the vehicle is down while the autopilot had not yet.
+    touchdown_unconfirmed_since_s: Option<f64>,
 }
 
 /// One step's input.
@@ -230,6 +236,7 @@ impl MissionSequencer {
             land_seen: false,
             guided_sent_s: f64::NEG_INFINITY,
             takeoff_mode_seen: false,
+            touchdown_unconfirmed_since_s: None,
         }
     }
 
@@ -431,10 +438,22 @@ impl MissionSequencer {
                 self.stage = Stage::Landing { sent_s: now_s };
             }
             Stage::Flying => {
+                // The landing task's touchdown rides on with the pad (its setpoint holds the
+                // pad's velocity and presses down) until the autopilot's land detector agrees,
+                // or for at most `touchdown_confirm_s`: the autopilot's land mode holds still
+                // over the ground, and a moving pad would drive away from under a vehicle
+                // still a hand's breadth above it.
+                let task_touchdown = input.landing.is_some_and(|setpoint| {
+                    setpoint.mode == algorithms::control::landing::LandingMode::Landed
+                });
+                let since_s = if task_touchdown && !autopilot.landed {
+                    Some(*self.touchdown_unconfirmed_since_s.get_or_insert(now_s))
+                } else {
+                    None
+                };
+                self.touchdown_unconfirmed_since_s = since_s;
                 let touchdown = autopilot.landed
-                    || input.landing.is_some_and(|setpoint| {
-                        setpoint.mode == algorithms::control::landing::LandingMode::Landed
-                    });
+                    || since_s.is_some_and(|since_s| now_s - since_s >= self.plan.touchdown_confirm_s);
                 if self.phase == Some(last_phase) && touchdown {
                     events.push(MissionEvent::Touchdown);
                     commands.push(VehicleCommand::Land);

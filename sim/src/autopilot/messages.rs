@@ -3,6 +3,7 @@
 
 use crate::flight::{AutopilotCommand, FlightMode, LandedState, VehicleSnapshot};
 use algorithms::estimation::camera_mount::gimbal_quaternion;
+use algorithms::estimation::projection::Attitude;
 use mavlink::dialects::common::{
     GimbalDeviceFlags, MavAutopilot, MavBatteryFunction, MavBatteryType, MavCmd, MavDistanceSensor,
     MavFrame, MavLandedState, MavMessage, MavModeFlag, MavResult, MavSensorOrientation, MavState,
@@ -56,9 +57,16 @@ pub(super) fn attitude(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> MavMess
 
 /// GIMBAL_DEVICE_ATTITUDE_STATUS for the vehicle's gimbal, its quaternion in the earth frame.
 pub(super) fn gimbal_attitude(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> Option<MavMessage> {
-    let camera = snapshot.gimbal_attitude?;
-    let q = gimbal_quaternion(&camera).map(|c| c as f32);
-    Some(MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(
+    snapshot
+        .gimbal_attitude
+        .map(|camera| gimbal_device_attitude_status(&camera, time_boot_ms))
+}
+
+/// GIMBAL_DEVICE_ATTITUDE_STATUS of a gimbal whose camera points as `camera` does, its
+/// quaternion in the earth frame: what a MAVLink gimbal device reports.
+pub fn gimbal_device_attitude_status(camera: &Attitude, time_boot_ms: u32) -> MavMessage {
+    let q = gimbal_quaternion(camera).map(|c| c as f32);
+    MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(
         GIMBAL_DEVICE_ATTITUDE_STATUS_DATA {
             time_boot_ms,
             q,
@@ -72,7 +80,7 @@ pub(super) fn gimbal_attitude(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> 
             delta_yaw_velocity: f32::NAN,
             ..Default::default()
         },
-    ))
+    )
 }
 
 pub(super) fn local_position(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> MavMessage {

@@ -3,4 +3,5 @@
 //! (UDP 9002+10i). Each exchange is lockstep: the autopilot's clock is the world's.
 
 pub mod ardupilot_json;
+pub mod gimbal_device;
 pub mod px4;

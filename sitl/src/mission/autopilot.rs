@@ -19,6 +19,9 @@ use sim::wind::Wind;
 use sim::world::World;
 
 use crate::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
+use crate::hil::gimbal_device::GimbalDevice;
+use algorithms::estimation::projection::Attitude;
+use sim::gimbal::Gimbal;
 use crate::hil::px4::{Px4Hil, Px4Vehicle};
 
 use super::{link_error, SimError};
@@ -95,13 +98,13 @@ impl RealAutopilot {
 impl RealAutopilot {
     /// The runtime's link to it. ArduPilot's MAVLink server opens a moment after it starts:
     /// a refused connection is tried again until [`Self::connect_timeout`].
-    pub fn open_link(&self) -> Result<MavlinkLink, SimError> {
+    pub fn open_link(&self, process: Option<&AutopilotProcess>) -> Result<MavlinkLink, SimError> {
         let start = std::time::Instant::now();
         loop {
             match MavlinkLink::connect(&self.mavlink_address(), LinkConfig::default()) {
                 Ok(link) => return Ok(link),
                 Err(error) if start.elapsed() >= self.connect_timeout => {
-                    return Err(link_error(error))
+                    return Err(failed_start(error, process))
                 }
                 Err(_) => std::thread::sleep(Duration::from_millis(100)),
             }
@@ -290,28 +293,89 @@ pub(super) enum Flyer {
         autopilot: Box<MavlinkAutopilot>,
         estimate: Box<EstimatedTelemetry>,
     },
-    Real(Box<RealVehicle>),
+    /// A real autopilot, and the camera's gimbal reporting itself where the mission has one.
+    Real {
+        vehicle: Box<RealVehicle>,
+        gimbal: Option<CameraGimbal>,
+    },
+}
+
+/// The camera's stabilising gimbal on a vehicle a real autopilot flies: the world moves it
+/// with the body, and it reports itself to the companion computer as a MAVLink gimbal device.
+pub(super) struct CameraGimbal {
+    gimbal: Gimbal,
+    device: GimbalDevice,
+}
+
+impl CameraGimbal {
+    /// PX4's companion link is UDP: the gimbal device reports there too. ArduPilot's is TCP to
+    /// ArduPilot itself, where a gimbal speaks through ArduPilot's own mount driver: not here.
+    pub(super) fn for_autopilot(gimbal: Gimbal, autopilot: &RealAutopilot) -> Result<Self, SimError> {
+        if autopilot.kind != AutopilotKind::Px4 {
+            return Err(SimError::Setup(
+                "the camera gimbal reports itself on PX4's UDP link only; with ArduPilot set the tracker's camera_mount = \"body\"".into(),
+            ));
+        }
+        let companion = std::net::SocketAddr::from((
+            [127, 0, 0, 1],
+            14540 + u16::from(autopilot.instance),
+        ));
+        // PX4 instance i is MAVLink system i + 1.
+        let device = GimbalDevice::new(companion, autopilot.instance + 1).map_err(link_error)?;
+        Ok(Self { gimbal, device })
+    }
+
+    /// Moves the gimbal by `dt_s` on the body's attitude and reports it at `time_s`.
+    pub(super) fn step(
+        &mut self,
+        dt_s: f64,
+        time_s: f64,
+        body: &Attitude,
+    ) -> std::io::Result<()> {
+        self.gimbal.step(dt_s, body);
+        // On PX4's clock, as its own messages are stamped.
+        let time_boot_ms = (crate::hil::px4::time_usec(time_s) / 1000) as u32;
+        self.device
+            .report(time_s, time_boot_ms, &self.gimbal.camera_attitude(body))
+    }
+
+    fn camera_pose(&self, body: &VehiclePose) -> VehiclePose {
+        self.gimbal.camera_pose(body)
+    }
 }
 
 impl Flyer {
     pub(super) fn camera_pose(&self) -> VehiclePose {
         match self {
             Self::Builtin { vehicle, .. } => vehicle.camera_pose(),
-            Self::Real(real) => real.camera_pose(),
+            Self::Real { vehicle, gimbal } => {
+                let body = vehicle.camera_pose();
+                gimbal.as_ref().map_or(body, |gimbal| gimbal.camera_pose(&body))
+            }
         }
     }
 
     pub(super) fn position_ned_m(&self) -> nalgebra::Vector3<f64> {
         match self {
             Self::Builtin { vehicle, .. } => vehicle.position_ned_m(),
-            Self::Real(real) => real.body().position_ned_m(),
+            Self::Real { vehicle, .. } => vehicle.body().position_ned_m(),
         }
     }
 
+    /// Where it last came down.
     pub(super) fn touchdown(&self) -> Option<Touchdown> {
+        self.touchdowns().last().copied()
+    }
+
+    /// Its first contact after flying.
+    pub(super) fn first_touchdown(&self) -> Option<Touchdown> {
+        self.touchdowns().first().copied()
+    }
+
+    fn touchdowns(&self) -> &[Touchdown] {
         match self {
-            Self::Builtin { vehicle, .. } => vehicle.touchdown(),
-            Self::Real(real) => real.body().touchdown(),
+            Self::Builtin { vehicle, .. } => vehicle.touchdowns(),
+            Self::Real { vehicle, .. } => vehicle.body().touchdowns(),
         }
     }
 
@@ -325,7 +389,9 @@ impl Flyer {
             Self::Builtin { vehicle, .. } => {
                 super::flight_power_w(vehicle.as_ref(), wind, rotors, time_s)
             }
-            Self::Real(real) => super::flight_power_w(real.body(), wind, rotors, time_s),
+            Self::Real { vehicle, .. } => {
+                super::flight_power_w(vehicle.body(), wind, rotors, time_s)
+            }
         }
     }
 }

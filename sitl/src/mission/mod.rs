@@ -48,7 +48,7 @@ mod autopilot;
 mod options;
 mod world;
 
-use autopilot::Flyer;
+use autopilot::{CameraGimbal, Flyer};
 pub use autopilot::{
     AutopilotKind, AutopilotProcess, RealAutopilot, RealVehicle, REAL_AUTOPILOT_READY_S,
 };
@@ -201,14 +201,16 @@ pub fn simulate(
             (flyer, link, None)
         }
         Some(real) => {
-            if gimbal.is_some() {
-                return Err(setup(
-                    "the real autopilots fly no camera gimbal here: set the tracker's camera_mount = \"body\"",
-                ));
-            }
+            let gimbal = gimbal
+                .map(|gimbal| CameraGimbal::for_autopilot(gimbal, real))
+                .transpose()?;
             let (vehicle, process) = RealVehicle::connect(real, options.seed)?;
-            let link = real.open_link()?;
-            (Flyer::Real(Box::new(vehicle)), link, process)
+            let link = real.open_link(process.as_ref())?;
+            let flyer = Flyer::Real {
+                vehicle: Box::new(vehicle),
+                gimbal,
+            };
+            (flyer, link, process)
         }
     };
 
@@ -440,7 +442,7 @@ pub fn simulate(
                 let t_ns = autopilot.publish(&snapshot).map_err(link_error)?;
                 (!options.real_time).then_some(t_ns)
             }
-            Flyer::Real(_) => None,
+            Flyer::Real { .. } => None,
         };
         let step = runner
             .step(runtime_now_s, lockstep)
@@ -546,7 +548,14 @@ pub fn simulate(
                         .map_err(setup)?;
                 }
             }
-            Flyer::Real(real) => real.step_until(&mut world, time_s + TICK_S)?,
+            Flyer::Real { vehicle, gimbal } => {
+                vehicle.step_until(&mut world, time_s + TICK_S)?;
+                if let Some(gimbal) = gimbal {
+                    gimbal
+                        .step(TICK_S, time_s + TICK_S, &vehicle.body().state().euler())
+                        .map_err(link_error)?;
+                }
+            }
         }
         let flight_w = flyer.flight_power_w(&mut world.wind, &rotors, time_s);
         // The companion draws what the tasks of the phase in flight cost at their levels.
@@ -635,6 +644,8 @@ pub fn simulate(
     events.extend(log.events.iter().cloned());
     events.sort_by(|a, b| a.0.total_cmp(&b.0));
     let touchdown = flyer.touchdown();
+    // How hard and how leaning: the first contact (a bounce's later ones are softer).
+    let first_touchdown = flyer.first_touchdown();
     let (flight_energy_wh, companion_energy_wh) = battery.energy_wh();
     let wall_s = wall_start.elapsed().as_secs_f64();
     Ok(SimOutcome {
@@ -642,7 +653,8 @@ pub fn simulate(
         landed_on_pad: touchdown.is_some_and(|t| t.on_pad),
         touched_down: touchdown.is_some(),
         touchdown_error_m: touchdown.map(|t| t.horizontal_error_m),
-        touchdown_tilt_deg: touchdown.map(|t| t.tilt_deg),
+        touchdown_tilt_deg: first_touchdown.map(|t| t.tilt_deg),
+        touchdown_vertical_speed_m_s: first_touchdown.map(|t| t.vertical_speed_m_s),
         time_to_land_s: match (touchdown, landing_started_s) {
             (Some(t), Some(start)) => Some(t.time_s - start),
             _ => None,

@@ -10,13 +10,95 @@ fn vehicles_parse() {
         "px4-sih:3".parse(),
         Ok(ServeVehicle::Px4Sih { instance: 3 })
     );
-    for bad in ["px4", "px4-sih:10", "px4-sih:x", "gazebo:1"] {
+    assert_eq!("px4-hil".parse(), Ok(ServeVehicle::Px4Hil { instance: 0 }));
+    assert_eq!(
+        "px4-hil:7".parse(),
+        Ok(ServeVehicle::Px4Hil { instance: 7 })
+    );
+    assert_eq!(
+        "ardupilot-json".parse(),
+        Ok(ServeVehicle::ArduPilotJson { instance: 0 })
+    );
+    assert_eq!(
+        "ardupilot-json:2".parse(),
+        Ok(ServeVehicle::ArduPilotJson { instance: 2 })
+    );
+    for bad in [
+        "px4",
+        "px4-sih:10",
+        "px4-sih:x",
+        "gazebo:1",
+        "sim:1",
+        "ardupilot",
+    ] {
         let error = bad.parse::<ServeVehicle>().unwrap_err();
         assert!(
             error.contains("px4-sih") || error.contains("0-9"),
             "{error}"
         );
     }
+    for (bad, wanted) in [
+        ("px4-hil:10", "px4-hil:10: the instance is 0-9"),
+        ("ardupilot-json:x", "ardupilot-json:x: the instance is 0-9"),
+    ] {
+        assert_eq!(bad.parse::<ServeVehicle>().unwrap_err(), wanted);
+    }
+}
+
+#[test]
+fn only_the_hil_vehicles_are_real_autopilots_the_user_started() {
+    let timeout = Duration::from_secs(7);
+    for vehicle in [
+        ServeVehicle::Simulated,
+        ServeVehicle::Px4Sih { instance: 1 },
+    ] {
+        assert_eq!(vehicle.real_autopilot(timeout), None);
+    }
+    let px4 = ServeVehicle::Px4Hil { instance: 3 }
+        .real_autopilot(timeout)
+        .unwrap();
+    assert_eq!(
+        px4,
+        RealAutopilot {
+            kind: AutopilotKind::Px4,
+            instance: 3,
+            command: None,
+            connect_timeout: timeout,
+        }
+    );
+    let ardupilot = ServeVehicle::ArduPilotJson { instance: 2 }
+        .real_autopilot(timeout)
+        .unwrap();
+    assert_eq!(ardupilot.kind, AutopilotKind::ArduPilot);
+    // The runtime's MAVLink goes to the autopilot itself.
+    assert_eq!(ardupilot.mavlink_address(), "tcpout:127.0.0.1:5780");
+    assert_eq!(
+        ServeVehicle::ArduPilotJson { instance: 2 }.describe(),
+        "ArduPilot SITL JSON instance 2"
+    );
+}
+
+#[test]
+fn a_real_touchdown_is_served_as_the_body_felt_it() {
+    let touchdown = Touchdown {
+        time_s: 41.3,
+        on_pad: true,
+        offset_in_pad_frame_m: Vector2::new(0.03, -0.04),
+        horizontal_error_m: 0.05,
+        vertical_speed_m_s: 0.6,
+        relative_horizontal_speed_m_s: 0.2,
+        tilt_deg: 3.5,
+    };
+    assert_eq!(
+        ServedTouchdown::from(touchdown),
+        ServedTouchdown {
+            time_s: 41.3,
+            on_pad: true,
+            horizontal_error_m: 0.05,
+            vertical_speed_m_s: 0.6,
+            tilt_deg: 3.5,
+        }
+    );
 }
 
 #[test]

@@ -18,6 +18,9 @@ const STALLED_DESCENT_FRACTION: f64 = 0.3;
 const REACQUIRE_GAIN_PER_S: f64 = 0.5;
 /// …and its limit on top of the platform's velocity.
 const REACQUIRE_MAX_CATCH_UP_M_S: f64 = 3.0;
+/// Landed, the vehicle keeps asking to descend this fast: on the pad it holds the thrust low
+/// (an autopilot's land detector wants that), a few centimetres above it, it settles softly.
+const LANDED_PRESS_DOWN_M_S: f64 = 0.3;
 
 /// The state machine proper, with the PID's state.
 #[derive(Debug, Clone, PartialEq)]
@@ -273,7 +276,13 @@ impl Machine {
                 let h = tracking_velocity(self)?;
                 (h, c.final_descent_speed_m_s, true)
             }
-            LandingMode::Landed => (Vector2::zeros(), 0.0, true),
+            // Down, or all but: ride with the pad, pressing onto it, until the autopilot takes
+            // over.
+            LandingMode::Landed => (
+                input.platform_velocity_ne_m_s,
+                LANDED_PRESS_DOWN_M_S,
+                true,
+            ),
         };
         // Descending into the weaker wind near the ground: lean less before the velocity loop
         // finds out.

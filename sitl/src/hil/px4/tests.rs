@@ -52,9 +52,9 @@ fn actuator_bytes(time_usec: u64, motors: [f32; 4], armed: bool) -> Vec<u8> {
 
 #[test]
 fn sensors_go_out_as_hil_messages_and_motor_commands_come_back() {
-    let instance = 7;
+    let instance = 207;
     let listener = Px4Hil::listen(instance).unwrap();
-    let port = PX4_SIMULATOR_PORT + 7;
+    let port = PX4_SIMULATOR_PORT + 207;
     let peer = fake_px4(port, |stream| {
         let mut reader = MavlinkReader::new(stream.try_clone().unwrap());
         let mut seen = Vec::new();
@@ -124,13 +124,13 @@ fn sensors_go_out_as_hil_messages_and_motor_commands_come_back() {
 
 #[test]
 fn no_px4_is_a_named_error_within_the_timeout() {
-    let listener = Px4Hil::listen(8).unwrap();
+    let listener = Px4Hil::listen(208).unwrap();
     let start = Instant::now();
-    let Err(error) = Px4Hil::accept(&listener, 8, Duration::from_millis(300)) else {
+    let Err(error) = Px4Hil::accept(&listener, 208, Duration::from_millis(300)) else {
         panic!("nobody connects, yet it accepted");
     };
     assert!(
-        matches!(error, Px4HilError::NoConnection { port: 4568, .. }),
+        matches!(error, Px4HilError::NoConnection { port: 4768, .. }),
         "{error}"
     );
     assert!(start.elapsed() < Duration::from_secs(2));
@@ -138,9 +138,9 @@ fn no_px4_is_a_named_error_within_the_timeout() {
 
 #[test]
 fn a_silent_or_babbling_peer_is_a_stall_within_the_timeout() {
-    let instance = 9;
+    let instance = 209;
     let listener = Px4Hil::listen(instance).unwrap();
-    let peer = fake_px4(PX4_SIMULATOR_PORT + 9, |mut stream| {
+    let peer = fake_px4(PX4_SIMULATOR_PORT + 209, |mut stream| {
         // Reads the sensors, answers with garbage only, then holds the connection open.
         let mut buffer = [0u8; 256];
         let _ = stream.read(&mut buffer);

@@ -1,0 +1,163 @@
+//! Whole missions flown by the real PX4 (v1.16.0, `none_iris` over HIL) and the real ArduPilot
+//! (Copter 4.6.3 over JSON) in the world: the runtime's landing on the pad riding the tractor
+//! through its 180° turn in 12 m/s gusts, their estimators on the world's sensors, their
+//! controllers on the world's rigid body. Each skips, saying why, without `../shared`.
+//! Flights that need the cores run one at a time.
+
+use runtime::config::load_file;
+use runtime::energy::{load_mission_model, MissionModel};
+use runtime::plugins::builtin_registry;
+use runtime::registry::PluginRegistry;
+use sim::outcome::SimOutcome;
+use sim::tractor::PathKind;
+use sitl::mission::{simulate, AutopilotKind, RealAutopilot, SimError, SimOptions};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// PX4 and ArduPilot instances no other test of this crate uses.
+const PX4_INSTANCE: u8 = 8;
+const ARDUPILOT_INSTANCE: u8 = 5;
+
+/// What ArduPilot must be told to fly the world's vehicle: an X frame like the world's body,
+/// the rangefinder from the JSON's `rng_1`, no battery monitor (its JSON mode models no battery
+/// and would report 0 V), PX4's 45° tilt limit (30° cannot hold 12 m/s gusts), the world's
+/// home, and no pacing of its own (the world sets the pace).
+const ARDUPILOT_WORLD_ARGS: &str = "-M JSON:127.0.0.1 -s 100 -P FRAME_TYPE=1 -P RNGFND1_TYPE=100 -P BATT_MONITOR=0 -P ANGLE_MAX=4500 -O 47.397742,8.545594,488,0";
+
+static CORES: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn shared(name: &str) -> Option<PathBuf> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared").join(name);
+    if path.exists() {
+        Some(path)
+    } else {
+        eprintln!("skipped: {} is absent", path.display());
+        None
+    }
+}
+
+/// The reference mission with its camera fixed to the body (the real autopilots fly no gimbal
+/// here), its tracking phase short.
+fn body_camera_mission(dir: &Path) -> (MissionModel, PluginRegistry) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let text = std::fs::read_to_string(root.join("qos.toml"))
+        .unwrap()
+        .replace("camera_mount = \"gimbal\"", "camera_mount = \"body\"")
+        .replace(
+            "path = \"profiles/",
+            &format!("path = \"{}/profiles/", root.display()),
+        );
+    let path = dir.join("body.toml");
+    std::fs::write(&path, text).unwrap();
+    let registry = builtin_registry().unwrap();
+    let loaded = load_file(&path, &registry.catalog()).unwrap();
+    (load_mission_model(&loaded).unwrap(), registry)
+}
+
+fn fly(autopilot: RealAutopilot) -> Result<SimOutcome, SimError> {
+    let _alone = CORES.lock().unwrap_or_else(|p| p.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let (model, registry) = body_camera_mission(dir.path());
+    let options = SimOptions {
+        path: PathKind::Turn180,
+        wind_speed_m_s: 12.0,
+        seed: 3,
+        tracking_s: Some(15.0),
+        autopilot: Some(autopilot),
+        ..SimOptions::default()
+    };
+    simulate(&model, &registry, &options)
+}
+
+fn assert_landed(autopilot: &str, outcome: &SimOutcome) {
+    eprintln!(
+        "{autopilot}: on pad {}, error {:?} m, {:?} m/s down, {:?}° lean, {} aborts, {:.1}× real time",
+        outcome.landed_on_pad,
+        outcome.touchdown_error_m,
+        outcome.touchdown_vertical_speed_m_s,
+        outcome.touchdown_tilt_deg,
+        outcome.landing_aborts,
+        outcome.speedup
+    );
+    assert!(outcome.landed_on_pad, "{autopilot}: {:?}", outcome.events);
+    assert!(
+        outcome.touchdown_error_m.unwrap() <= 0.2,
+        "{autopilot}: {:?}",
+        outcome.touchdown_error_m
+    );
+    assert!(
+        outcome.touchdown_vertical_speed_m_s.unwrap() <= 1.0,
+        "{autopilot}: {:?}",
+        outcome.touchdown_vertical_speed_m_s
+    );
+}
+
+#[test]
+fn the_real_px4_lands_on_the_turning_tractor_in_12_m_s_gusts() {
+    let Some(start) = shared("px4-sitl/start") else {
+        return;
+    };
+    let outcome = fly(RealAutopilot {
+        kind: AutopilotKind::Px4,
+        instance: PX4_INSTANCE,
+        command: Some(format!("{} -i {{i}} -m none_iris", start.display())),
+        connect_timeout: Duration::from_secs(30),
+    })
+    .unwrap();
+    assert_landed("PX4", &outcome);
+    // PX4 commanded the whole flight: armed, offboard, then the runtime's landing.
+    for event in ["armed", "offboard engaged", "phase landing started", "touchdown"] {
+        assert!(
+            outcome.events.iter().any(|(_, e)| e == event),
+            "{event}: {:?}",
+            outcome.events
+        );
+    }
+}
+
+#[test]
+fn the_real_ardupilot_lands_on_the_turning_tractor_in_12_m_s_gusts() {
+    let Some(start) = shared("ardupilot-sitl/start") else {
+        return;
+    };
+    let outcome = fly(RealAutopilot {
+        kind: AutopilotKind::ArduPilot,
+        instance: ARDUPILOT_INSTANCE,
+        command: Some(format!(
+            "{} -I {{i}} {ARDUPILOT_WORLD_ARGS}",
+            start.display()
+        )),
+        connect_timeout: Duration::from_secs(30),
+    })
+    .unwrap();
+    assert_landed("ArduPilot", &outcome);
+}
+
+#[test]
+fn an_autopilot_that_never_connects_is_a_named_error_within_seconds() {
+    let started = Instant::now();
+    // Nobody starts a PX4 on instance 9: the world waits 1 s for it.
+    let error = fly(RealAutopilot {
+        kind: AutopilotKind::Px4,
+        instance: 9,
+        command: None,
+        connect_timeout: Duration::from_secs(1),
+    })
+    .err()
+    .expect("no PX4, no mission");
+    let text = error.to_string();
+    assert!(text.contains("no PX4 connected to TCP 127.0.0.1:4569"), "{text}");
+    assert!(started.elapsed() < Duration::from_secs(5));
+    // A command that exits at once: its words are in the error.
+    let error = fly(RealAutopilot {
+        kind: AutopilotKind::ArduPilot,
+        instance: 9,
+        command: Some("echo 'arducopter: no such model' >&2; exit 3".into()),
+        connect_timeout: Duration::from_secs(1),
+    })
+    .err()
+    .expect("no ArduPilot, no mission");
+    let text = error.to_string();
+    assert!(text.contains("arducopter: no such model"), "{text}");
+    assert!(started.elapsed() < Duration::from_secs(10));
+}
