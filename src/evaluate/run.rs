@@ -83,7 +83,13 @@ pub fn run(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> E
             );
             // The autopilot the arguments name (its instance and command).
             let autopilot = args.options(evaluation.seeds[seed]).autopilot;
-            (cell, SimOptions { autopilot, ..options })
+            (
+                cell,
+                SimOptions {
+                    autopilot,
+                    ..options
+                },
+            )
         })
         .collect();
     eprintln!(

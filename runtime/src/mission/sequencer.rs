@@ -453,7 +453,8 @@ impl MissionSequencer {
                 };
                 self.touchdown_unconfirmed_since_s = since_s;
                 let touchdown = autopilot.landed
-                    || since_s.is_some_and(|since_s| now_s - since_s >= self.plan.touchdown_confirm_s);
+                    || since_s
+                        .is_some_and(|since_s| now_s - since_s >= self.plan.touchdown_confirm_s);
                 if self.phase == Some(last_phase) && touchdown {
                     events.push(MissionEvent::Touchdown);
                     commands.push(VehicleCommand::Land);

@@ -66,21 +66,19 @@ pub(super) fn gimbal_attitude(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> 
 /// quaternion in the earth frame: what a MAVLink gimbal device reports.
 pub fn gimbal_device_attitude_status(camera: &Attitude, time_boot_ms: u32) -> MavMessage {
     let q = gimbal_quaternion(camera).map(|c| c as f32);
-    MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(
-        GIMBAL_DEVICE_ATTITUDE_STATUS_DATA {
-            time_boot_ms,
-            q,
-            angular_velocity_x: f32::NAN,
-            angular_velocity_y: f32::NAN,
-            angular_velocity_z: f32::NAN,
-            flags: GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_ROLL_LOCK
-                | GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_PITCH_LOCK
-                | GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME,
-            delta_yaw: f32::NAN,
-            delta_yaw_velocity: f32::NAN,
-            ..Default::default()
-        },
-    )
+    MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(GIMBAL_DEVICE_ATTITUDE_STATUS_DATA {
+        time_boot_ms,
+        q,
+        angular_velocity_x: f32::NAN,
+        angular_velocity_y: f32::NAN,
+        angular_velocity_z: f32::NAN,
+        flags: GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_ROLL_LOCK
+            | GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+            | GimbalDeviceFlags::GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME,
+        delta_yaw: f32::NAN,
+        delta_yaw_velocity: f32::NAN,
+        ..Default::default()
+    })
 }
 
 pub(super) fn local_position(snapshot: &VehicleSnapshot, time_boot_ms: u32) -> MavMessage {

@@ -20,9 +20,9 @@ use sim::world::World;
 
 use crate::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
 use crate::hil::gimbal_device::GimbalDevice;
+use crate::hil::px4::{Px4Hil, Px4Vehicle};
 use algorithms::estimation::projection::Attitude;
 use sim::gimbal::Gimbal;
-use crate::hil::px4::{Px4Hil, Px4Vehicle};
 
 use super::{link_error, SimError};
 
@@ -310,28 +310,24 @@ pub(super) struct CameraGimbal {
 impl CameraGimbal {
     /// PX4's companion link is UDP: the gimbal device reports there too. ArduPilot's is TCP to
     /// ArduPilot itself, where a gimbal speaks through ArduPilot's own mount driver: not here.
-    pub(super) fn for_autopilot(gimbal: Gimbal, autopilot: &RealAutopilot) -> Result<Self, SimError> {
+    pub(super) fn for_autopilot(
+        gimbal: Gimbal,
+        autopilot: &RealAutopilot,
+    ) -> Result<Self, SimError> {
         if autopilot.kind != AutopilotKind::Px4 {
             return Err(SimError::Setup(
                 "the camera gimbal reports itself on PX4's UDP link only; with ArduPilot set the tracker's camera_mount = \"body\"".into(),
             ));
         }
-        let companion = std::net::SocketAddr::from((
-            [127, 0, 0, 1],
-            14540 + u16::from(autopilot.instance),
-        ));
+        let companion =
+            std::net::SocketAddr::from(([127, 0, 0, 1], 14540 + u16::from(autopilot.instance)));
         // PX4 instance i is MAVLink system i + 1.
         let device = GimbalDevice::new(companion, autopilot.instance + 1).map_err(link_error)?;
         Ok(Self { gimbal, device })
     }
 
     /// Moves the gimbal by `dt_s` on the body's attitude and reports it at `time_s`.
-    pub(super) fn step(
-        &mut self,
-        dt_s: f64,
-        time_s: f64,
-        body: &Attitude,
-    ) -> std::io::Result<()> {
+    pub(super) fn step(&mut self, dt_s: f64, time_s: f64, body: &Attitude) -> std::io::Result<()> {
         self.gimbal.step(dt_s, body);
         // On PX4's clock, as its own messages are stamped.
         let time_boot_ms = (crate::hil::px4::time_usec(time_s) / 1000) as u32;
@@ -350,7 +346,9 @@ impl Flyer {
             Self::Builtin { vehicle, .. } => vehicle.camera_pose(),
             Self::Real { vehicle, gimbal } => {
                 let body = vehicle.camera_pose();
-                gimbal.as_ref().map_or(body, |gimbal| gimbal.camera_pose(&body))
+                gimbal
+                    .as_ref()
+                    .map_or(body, |gimbal| gimbal.camera_pose(&body))
             }
         }
     }

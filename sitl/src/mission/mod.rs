@@ -48,10 +48,10 @@ mod autopilot;
 mod options;
 mod world;
 
-use autopilot::{CameraGimbal, Flyer};
 pub use autopilot::{
     AutopilotKind, AutopilotProcess, RealAutopilot, RealVehicle, REAL_AUTOPILOT_READY_S,
 };
+use autopilot::{CameraGimbal, Flyer};
 pub use options::*;
 pub use world::*;
 

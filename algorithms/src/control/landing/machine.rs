@@ -278,11 +278,7 @@ impl Machine {
             }
             // Down, or all but: ride with the pad, pressing onto it, until the autopilot takes
             // over.
-            LandingMode::Landed => (
-                input.platform_velocity_ne_m_s,
-                LANDED_PRESS_DOWN_M_S,
-                true,
-            ),
+            LandingMode::Landed => (input.platform_velocity_ne_m_s, LANDED_PRESS_DOWN_M_S, true),
         };
         // Descending into the weaker wind near the ground: lean less before the velocity loop
         // finds out.
