@@ -168,14 +168,14 @@ fn the_real_ardupilot_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts()
 fn an_autopilot_that_never_connects_is_a_named_error_within_seconds() {
     let started = Instant::now();
     // Nobody starts a PX4 on instance 9: the world waits 1 s for it.
-    let error = try_fly(RealAutopilot {
+    let Err(error) = try_fly(RealAutopilot {
         kind: AutopilotKind::Px4,
         instance: 9,
         command: None,
         connect_timeout: Duration::from_secs(1),
-    })
-    .err()
-    .expect("no PX4, no mission");
+    }) else {
+        panic!("no PX4, yet a mission");
+    };
     let text = error.to_string();
     assert!(
         text.contains("no PX4 connected to TCP 127.0.0.1:4569"),
@@ -183,14 +183,14 @@ fn an_autopilot_that_never_connects_is_a_named_error_within_seconds() {
     );
     assert!(started.elapsed() < Duration::from_secs(5));
     // A command that exits at once: its words are in the error.
-    let error = try_fly(RealAutopilot {
+    let Err(error) = try_fly(RealAutopilot {
         kind: AutopilotKind::ArduPilot,
         instance: 9,
         command: Some("echo 'arducopter: no such model' >&2; exit 3".into()),
         connect_timeout: Duration::from_secs(1),
-    })
-    .err()
-    .expect("no ArduPilot, no mission");
+    }) else {
+        panic!("no ArduPilot, yet a mission");
+    };
     let text = error.to_string();
     assert!(text.contains("arducopter: no such model"), "{text}");
     assert!(started.elapsed() < Duration::from_secs(10));

@@ -430,9 +430,9 @@ impl MavlinkLink {
             let from_gimbal = of_vehicle
                 && header.component_id == GIMBAL_COMPONENT_ID
                 && matches!(message, MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(_));
-            if !from_gimbal
-                && !(of_vehicle && self.config.target_component_id == header.component_id)
-            {
+            let from_autopilot_component =
+                of_vehicle && self.config.target_component_id == header.component_id;
+            if !(from_gimbal || from_autopilot_component) {
                 self.stats.ignored += 1;
                 continue;
             }

@@ -728,7 +728,10 @@ fn commit_below_lh_then_landed() {
     let out = run(&mut c, &mut t_s, DT_S, Some(0.0), 0.04);
     assert_eq!(out.mode, LandingMode::Landed);
     assert!(out.land_command);
-    assert_eq!(out.velocity_setpoint_ned_m_s, Vector3::zeros());
+    // Down: it rides with the platform, pressing onto the pad, until the autopilot takes over.
+    let v = out.velocity_setpoint_ned_m_s;
+    assert!((v.x - 3.0).abs() < 0.2 && v.y.abs() < 0.2, "{v}");
+    assert_eq!(v.z, 0.3);
 }
 
 /// Committed and descending at the final speed, the vehicle meets the pad 0.1 m above
