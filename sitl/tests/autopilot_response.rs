@@ -1,0 +1,817 @@
+//! The built-in autopilot (`sim::vehicle::Multirotor`, `VehicleParams::default()`) against the
+//! real PX4 (v1.16.0 `none_iris` over HIL) and the real ArduPilot (Copter 4.6.3 over JSON) on
+//! the same input: hovering at 5 m in calm air, a velocity step from 0 to 2 m/s north held for
+//! 6 s, then back to 0 for 6 s. Each response is measured on the world's truth at 100 Hz: the
+//! 63 % rise time, the overshoot, the peak tilt and the settling time (±10 % of the step).
+//! Skips, saying why, without `../shared/px4-sitl` and `../shared/ardupilot-sitl`. PX4 and
+//! ArduPilot fly one after the other, never together.
+
+use std::net::{SocketAddr, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+use mavlink::dialects::common::{
+    MavCmd, MavFrame, MavMessage, MavResult, PositionTargetTypemask, COMMAND_LONG_DATA,
+    SET_POSITION_TARGET_LOCAL_NED_DATA,
+};
+use mavlink::{MavConnection, MavHeader, MavlinkVersion};
+use nalgebra::Vector3;
+use sim::flight::{AutopilotCommand, FlightMode};
+use sim::quadrotor::{BodyState, Quadrotor, QuadrotorParams};
+use sim::sensors::{Home, SensorParams, Sensors};
+use sim::tractor::{PathKind, Tractor, TractorParams};
+use sim::vehicle::{Multirotor, VehicleParams};
+use sim::wind::{Wind, WindConfig};
+use sim::world::World;
+use sitl::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
+use sitl::hil::px4::{Px4Hil, Px4Vehicle};
+
+/// Instances no other test uses: PX4 9 (HIL TCP 4569, onboard UDP 14549, system 10) and
+/// ArduPilot 9 (MAVLink TCP 5850, JSON UDP 9092; 7 is what `qosrt evaluate` runs were seen on).
+const PX4_INSTANCE: u8 = 9;
+const ARDUPILOT_INSTANCE: u8 = 9;
+const ARDUPILOT_WORLD_ARGS: &str = "-M JSON:127.0.0.1 -s 100 -P FRAME_TYPE=1 -P RNGFND1_TYPE=100 -P BATT_MONITOR=0 -P ANGLE_MAX=4500 -O 47.397742,8.545594,488,0";
+
+const HOVER_ALTITUDE_M: f64 = 5.0;
+const STEP_SPEED_M_S: f64 = 2.0;
+const STEP_HOLD_S: f64 = 6.0;
+const SAMPLE_PERIOD_S: f64 = 0.01;
+const SETPOINT_PERIOD_S: f64 = 0.05;
+/// Velocity only, in LOCAL_NED: position, acceleration, yaw and yaw rate ignored (3527).
+const VELOCITY_TYPE_MASK: u16 = 3527;
+const GUIDED: f32 = 4.0;
+
+/// One sample of the world's truth.
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    time_s: f64,
+    north_m_s: f64,
+    tilt_deg: f64,
+}
+
+/// The velocity north the step asks for at `time_s`.
+fn north_setpoint(time_s: f64, step_at_s: Option<f64>) -> f64 {
+    match step_at_s {
+        Some(at) if time_s >= at && time_s < at + STEP_HOLD_S => STEP_SPEED_M_S,
+        _ => 0.0,
+    }
+}
+
+/// The figures of one step (up or down).
+#[derive(Debug, Clone, Copy)]
+struct StepFigures {
+    /// From the step to 5 % of the way: the dead time, the setpoint's transport included.
+    delay_5_s: Option<f64>,
+    /// From the step to 63 % of the way to the target.
+    rise_63_s: Option<f64>,
+    /// Peak progress past the target, as a fraction of the step (peak speed / 2 m/s − 1 up).
+    overshoot: f64,
+    peak_tilt_deg: f64,
+    /// From the step until the speed stays within ±10 % of the step around the target.
+    settling_s: Option<f64>,
+    /// Whether the speed came within 0.3 m/s of the target in the window.
+    reached: bool,
+}
+
+fn step_figures(
+    samples: &[Sample],
+    from_s: f64,
+    to_s: f64,
+    start: f64,
+    target: f64,
+) -> StepFigures {
+    let window: Vec<&Sample> = samples
+        .iter()
+        .filter(|s| s.time_s >= from_s && s.time_s < to_s)
+        .collect();
+    let step = target - start;
+    let progress = |s: &Sample| (s.north_m_s - start) / step;
+    let delay_5_s = window
+        .iter()
+        .find(|s| progress(s) >= 0.05)
+        .map(|s| s.time_s - from_s);
+    let rise_63_s = window
+        .iter()
+        .find(|s| progress(s) >= 0.63)
+        .map(|s| s.time_s - from_s);
+    let overshoot = window.iter().map(|s| progress(s)).fold(f64::MIN, f64::max) - 1.0;
+    let peak_tilt_deg = window.iter().map(|s| s.tilt_deg).fold(0.0, f64::max);
+    let band = 0.1 * step.abs();
+    let outside = |s: &Sample| (s.north_m_s - target).abs() > band;
+    let settling_s = match window.iter().rposition(|s| outside(s)) {
+        None => Some(0.0),
+        Some(last) if last + 1 < window.len() => Some(window[last + 1].time_s - from_s),
+        Some(_) => None,
+    };
+    let reached = window.iter().any(|s| (s.north_m_s - target).abs() <= 0.3);
+    StepFigures {
+        delay_5_s,
+        rise_63_s,
+        overshoot,
+        peak_tilt_deg,
+        settling_s,
+        reached,
+    }
+}
+
+/// A vehicle's response: the step up and the step down.
+#[derive(Debug, Clone, Copy)]
+struct Response {
+    up: StepFigures,
+    down: StepFigures,
+}
+
+fn response(samples: &[Sample], step_at_s: f64) -> Response {
+    let down_at_s = step_at_s + STEP_HOLD_S;
+    Response {
+        up: step_figures(samples, step_at_s, down_at_s, 0.0, STEP_SPEED_M_S),
+        down: step_figures(
+            samples,
+            down_at_s,
+            down_at_s + STEP_HOLD_S,
+            STEP_SPEED_M_S,
+            0.0,
+        ),
+    }
+}
+
+fn seconds(value: Option<f64>) -> String {
+    value.map_or_else(|| "never".to_string(), |v| format!("{v:.2} s"))
+}
+
+fn print_table(rows: &[(&str, Response)]) {
+    eprintln!(
+        "{:<26} {:>5} {:>9} {:>9} {:>10} {:>10} {:>10}",
+        "vehicle", "step", "delay 5%", "rise 63%", "overshoot", "peak tilt", "settling"
+    );
+    for (name, r) in rows {
+        for (label, f) in [("up", r.up), ("down", r.down)] {
+            eprintln!(
+                "{:<26} {:>5} {:>9} {:>9} {:>9.1}% {:>9.1}° {:>10}",
+                name,
+                label,
+                seconds(f.delay_5_s),
+                seconds(f.rise_63_s),
+                100.0 * f.overshoot,
+                f.peak_tilt_deg,
+                seconds(f.settling_s)
+            );
+        }
+    }
+}
+
+fn tilt_deg(state: &BodyState) -> f64 {
+    let z = state.attitude * Vector3::z();
+    z.z.clamp(-1.0, 1.0).acos().to_degrees()
+}
+
+/// Calm air over the ground; the tractor parked far away.
+fn calm_world() -> World {
+    let tractor = Tractor::new(
+        PathKind::Straight,
+        TractorParams::default(),
+        [1_000.0, 1_000.0],
+        0.0,
+    )
+    .unwrap()
+    .parked();
+    World::new(tractor, Wind::new(WindConfig::Calm, 1).unwrap())
+}
+
+/// What the world thread shares with the ground station.
+#[derive(Debug, Default)]
+struct Shared {
+    time_s: f64,
+    altitude_m: f64,
+    samples: Vec<Sample>,
+    /// While true, the world thread streams velocity setpoints every 50 ms of simulated time.
+    streaming: bool,
+    /// The simulated time of the step up; the world thread applies it on its own clock.
+    step_at_s: Option<f64>,
+    error: Option<String>,
+}
+
+/// The lockstep loop: `step` moves the world by one autopilot frame and returns the time and
+/// the body's state; `send_north` sends a velocity setpoint north to the autopilot.
+fn world_loop(
+    mut step: impl FnMut() -> Result<(f64, BodyState), String>,
+    mut send_north: impl FnMut(f64),
+    shared: &Mutex<Shared>,
+    stop: &AtomicBool,
+) -> f64 {
+    let wall = Instant::now();
+    let mut next_sample_s = 0.0;
+    let mut next_setpoint_s = 0.0;
+    let mut time_s = 0.0;
+    while !stop.load(Ordering::Relaxed) {
+        let state = match step() {
+            Ok((t, state)) => {
+                time_s = t;
+                state
+            }
+            Err(error) => {
+                shared.lock().unwrap().error = Some(error);
+                break;
+            }
+        };
+        let mut s = shared.lock().unwrap();
+        s.time_s = time_s;
+        s.altitude_m = -state.position_ned_m.z;
+        if time_s >= next_sample_s {
+            s.samples.push(Sample {
+                time_s,
+                north_m_s: state.velocity_ned_m_s.x,
+                tilt_deg: tilt_deg(&state),
+            });
+            while next_sample_s <= time_s {
+                next_sample_s += SAMPLE_PERIOD_S;
+            }
+        }
+        if s.streaming && time_s >= next_setpoint_s {
+            send_north(north_setpoint(time_s, s.step_at_s));
+            next_setpoint_s = time_s + SETPOINT_PERIOD_S;
+        }
+    }
+    time_s / wall.elapsed().as_secs_f64()
+}
+
+fn velocity_setpoint(target_system: u8, north_m_s: f64) -> MavMessage {
+    MavMessage::SET_POSITION_TARGET_LOCAL_NED(SET_POSITION_TARGET_LOCAL_NED_DATA {
+        target_system,
+        target_component: 1,
+        coordinate_frame: MavFrame::MAV_FRAME_LOCAL_NED,
+        type_mask: PositionTargetTypemask::from_bits_truncate(VELOCITY_TYPE_MASK),
+        vx: north_m_s as f32,
+        ..Default::default()
+    })
+}
+
+fn command_long(target_system: u8, command: MavCmd, params: [f32; 7]) -> MavMessage {
+    MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+        target_system,
+        target_component: 1,
+        command,
+        confirmation: 0,
+        param1: params[0],
+        param2: params[1],
+        param3: params[2],
+        param4: params[3],
+        param5: params[4],
+        param6: params[5],
+        param7: params[6],
+    })
+}
+
+const GCS_HEADER: MavHeader = MavHeader {
+    system_id: 255,
+    component_id: 190,
+    sequence: 0,
+};
+
+/// A SITL process, killed (SIGKILL: both ignore SIGTERM while waiting for their simulator)
+/// when dropped, a failed assertion included.
+struct Process(u32);
+
+impl Drop for Process {
+    fn drop(&mut self) {
+        let _ = Command::new("kill")
+            .args(["-9", &self.0.to_string()])
+            .status();
+    }
+}
+
+fn shared_dir(name: &str) -> Option<PathBuf> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared")
+        .join(name);
+    path.join("start").exists().then_some(path)
+}
+
+fn start(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Process {
+    let output = Command::new(dir.join("start"))
+        .args(args)
+        .envs(env.iter().copied())
+        .stdin(Stdio::null())
+        .output()
+        .expect("the start script runs");
+    assert!(
+        output.status.success(),
+        "{} did not start: {}",
+        dir.display(),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    Process(
+        String::from_utf8_lossy(&output.stdout)
+            .trim()
+            .parse()
+            .expect("the start script prints the pid"),
+    )
+}
+
+/// Waits, checking the world, until `done` holds for the shared state or the deadline passes.
+fn wait_until(
+    shared: &Mutex<Shared>,
+    deadline: Instant,
+    what: &str,
+    mut pump: impl FnMut(),
+    done: impl Fn(&Shared) -> bool,
+) {
+    loop {
+        {
+            let s = shared.lock().unwrap();
+            assert!(s.error.is_none(), "the world stopped: {:?}", s.error);
+            if done(&s) {
+                return;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "{what}: not by t = {:.1} s (altitude {:.2} m)",
+                s.time_s,
+                s.altitude_m
+            );
+        }
+        pump();
+    }
+}
+
+/// The hover, the setpoint stream, the step: common to both real autopilots once airborne.
+/// `pump` reads the ground station's link; `enter_offboard` is called once the stream runs.
+fn fly_step(
+    shared: &Mutex<Shared>,
+    deadline: Instant,
+    mut pump: impl FnMut(),
+    enter_offboard: impl FnOnce(&mut dyn FnMut()),
+) -> f64 {
+    wait_until(shared, deadline, "hover at 5 m", &mut pump, |s| {
+        (s.altitude_m - HOVER_ALTITUDE_M).abs() < 0.5
+    });
+    let settle_until = shared.lock().unwrap().time_s + 3.0;
+    wait_until(shared, deadline, "settled hover", &mut pump, |s| {
+        s.time_s >= settle_until
+    });
+    let stream_from_s = {
+        let mut s = shared.lock().unwrap();
+        s.streaming = true;
+        s.time_s
+    };
+    wait_until(shared, deadline, "a second of setpoints", &mut pump, |s| {
+        s.time_s >= stream_from_s + 1.0
+    });
+    enter_offboard(&mut pump);
+    let offboard_at_s = shared.lock().unwrap().time_s;
+    wait_until(shared, deadline, "hover under setpoints", &mut pump, |s| {
+        s.time_s >= offboard_at_s + 2.0
+    });
+    let step_at_s = {
+        let mut s = shared.lock().unwrap();
+        let at = s.time_s + 0.5;
+        s.step_at_s = Some(at);
+        at
+    };
+    wait_until(shared, deadline, "the step's end", &mut pump, |s| {
+        s.time_s >= step_at_s + 2.0 * STEP_HOLD_S + 0.2
+    });
+    step_at_s
+}
+
+fn px4_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
+    let wall = Instant::now();
+    let deadline = wall + Duration::from_secs(120);
+    let listener = Px4Hil::listen(PX4_INSTANCE).unwrap();
+    let _px4 = start(
+        dir,
+        &["-i", &PX4_INSTANCE.to_string(), "-m", "none_iris"],
+        &[("PX4_PARAMS", "MIS_TAKEOFF_ALT 5")],
+    );
+    let hil = Px4Hil::accept(&listener, PX4_INSTANCE, Duration::from_secs(20)).unwrap();
+    let body = Quadrotor::on_ground(QuadrotorParams::default(), Vector3::zeros()).unwrap();
+    let sensors = Sensors::new(SensorParams::default(), Home::default(), 9);
+    let mut vehicle = Px4Vehicle::new(hil, body, sensors);
+    let gcs = UdpSocket::bind(("127.0.0.1", 14540 + u16::from(PX4_INSTANCE))).unwrap();
+    gcs.set_read_timeout(Some(Duration::from_millis(50)))
+        .unwrap();
+    let peer: Arc<OnceLock<SocketAddr>> = Arc::new(OnceLock::new());
+    let shared = Arc::new(Mutex::new(Shared::default()));
+    let stop = Arc::new(AtomicBool::new(false));
+    let system = PX4_INSTANCE + 1;
+    let send = |socket: &UdpSocket, to: SocketAddr, message: &MavMessage| {
+        let mut bytes = Vec::new();
+        mavlink::write_versioned_msg(&mut bytes, MavlinkVersion::V2, GCS_HEADER, message).unwrap();
+        let _ = socket.send_to(&bytes, to);
+    };
+    let world = {
+        let (shared, stop, peer) = (shared.clone(), stop.clone(), peer.clone());
+        let socket = gcs.try_clone().unwrap();
+        std::thread::spawn(move || {
+            let mut world = calm_world();
+            world_loop(
+                || {
+                    vehicle.step(&mut world).map_err(|e| e.to_string())?;
+                    Ok((vehicle.time_s, *vehicle.body.state()))
+                },
+                |north| {
+                    if let Some(to) = peer.get() {
+                        send(&socket, *to, &velocity_setpoint(system, north));
+                    }
+                },
+                &shared,
+                &stop,
+            )
+        })
+    };
+    // Whatever arrives on the onboard link: its sender and the command acks.
+    let acks = Mutex::new(Vec::<(MavCmd, MavResult)>::new());
+    let pump = || {
+        let mut buffer = [0u8; 4096];
+        if let Ok((n, from)) = gcs.recv_from(&mut buffer) {
+            let _ = peer.set(from);
+            let mut reader = mavlink::MavlinkReader::new(&buffer[..n]);
+            while let Ok((_, message)) = reader.read_any_message::<MavMessage>() {
+                if let MavMessage::COMMAND_ACK(ack) = message {
+                    acks.lock().unwrap().push((ack.command, ack.result));
+                }
+            }
+        }
+    };
+    let accepted = |command: MavCmd| {
+        let mut acks = acks.lock().unwrap();
+        let yes = acks.contains(&(command, MavResult::MAV_RESULT_ACCEPTED));
+        acks.retain(|(c, _)| *c != command);
+        yes
+    };
+    let issue = |command: MavCmd, params: [f32; 7]| {
+        let to = *peer.get().expect("PX4's address is known");
+        send(&gcs, to, &command_long(system, command, params));
+    };
+    while peer.get().is_none() {
+        assert!(Instant::now() < deadline, "PX4 sends nothing on its link");
+        assert!(shared.lock().unwrap().error.is_none());
+        pump();
+    }
+    // Arm (refused until EKF2 is ready), then take off to MIS_TAKEOFF_ALT = 5 m.
+    loop {
+        assert!(Instant::now() < deadline, "PX4 never armed");
+        assert!(shared.lock().unwrap().error.is_none());
+        issue(
+            MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        );
+        for _ in 0..6 {
+            pump();
+        }
+        if accepted(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM) {
+            break;
+        }
+    }
+    issue(
+        MavCmd::MAV_CMD_NAV_TAKEOFF,
+        [0.0, 0.0, 0.0, f32::NAN, f32::NAN, f32::NAN, f32::NAN],
+    );
+    let step_at_s = fly_step(&shared, deadline, pump, |pump| loop {
+        assert!(Instant::now() < deadline, "OFFBOARD refused");
+        issue(
+            MavCmd::MAV_CMD_DO_SET_MODE,
+            [1.0, 6.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        );
+        for _ in 0..4 {
+            pump();
+        }
+        if accepted(MavCmd::MAV_CMD_DO_SET_MODE) {
+            break;
+        }
+    });
+    stop.store(true, Ordering::Relaxed);
+    let speedup = world.join().unwrap();
+    let samples = std::mem::take(&mut shared.lock().unwrap().samples);
+    eprintln!(
+        "PX4: step at t = {step_at_s:.1} s, {speedup:.1}× real time, {:.1} s wall",
+        wall.elapsed().as_secs_f64()
+    );
+    (response(&samples, step_at_s), samples, step_at_s)
+}
+
+fn ardupilot_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
+    let wall = Instant::now();
+    let deadline = wall + Duration::from_secs(120);
+    let backend = ArduPilotJson::bind(ARDUPILOT_INSTANCE).unwrap();
+    let instance = ARDUPILOT_INSTANCE.to_string();
+    let mut args = vec!["-I", &instance];
+    args.extend(ARDUPILOT_WORLD_ARGS.split_whitespace());
+    let _ardupilot = start(dir, &args, &[]);
+    let link = Arc::new(
+        mavlink::connect::<MavMessage>(&format!(
+            "tcpout:127.0.0.1:{}",
+            5760 + 10 * u16::from(ARDUPILOT_INSTANCE)
+        ))
+        .expect("ArduPilot's MAVLink TCP server accepts"),
+    );
+    let body = Quadrotor::on_ground(QuadrotorParams::default(), Vector3::zeros()).unwrap();
+    let sensors = Sensors::new(SensorParams::default(), Home::default(), 7);
+    let mut vehicle = ArduPilotVehicle::new(backend, body, sensors);
+    let shared = Arc::new(Mutex::new(Shared::default()));
+    let stop = Arc::new(AtomicBool::new(false));
+    let world = {
+        let (shared, stop, link) = (shared.clone(), stop.clone(), link.clone());
+        std::thread::spawn(move || {
+            let mut world = calm_world();
+            world_loop(
+                || {
+                    vehicle.step(&mut world).map_err(|e| e.to_string())?;
+                    Ok((vehicle.time_s, *vehicle.body.state()))
+                },
+                |north| {
+                    let _ = link.send(&GCS_HEADER, &velocity_setpoint(1, north));
+                },
+                &shared,
+                &stop,
+            )
+        })
+    };
+    let acks = Mutex::new(Vec::<(MavCmd, MavResult)>::new());
+    let texts = Mutex::new(Vec::<String>::new());
+    let last_texts = || {
+        let texts = texts.lock().unwrap();
+        texts[texts.len().saturating_sub(8)..].to_vec()
+    };
+    let pump = || {
+        // The link's reads time out every 100 ms.
+        match link.recv() {
+            Ok((_, MavMessage::COMMAND_ACK(ack))) => {
+                acks.lock().unwrap().push((ack.command, ack.result));
+            }
+            Ok((_, MavMessage::STATUSTEXT(text))) => {
+                let text = String::from_utf8_lossy(&text.text.to_vec())
+                    .trim_end_matches('\0')
+                    .to_string();
+                texts.lock().unwrap().push(text);
+            }
+            _ => {}
+        }
+    };
+    let accepted = |command: MavCmd| {
+        let mut acks = acks.lock().unwrap();
+        let yes = acks.contains(&(command, MavResult::MAV_RESULT_ACCEPTED));
+        acks.retain(|(c, _)| *c != command);
+        yes
+    };
+    let issue = |command: MavCmd, params: [f32; 7]| {
+        link.send(&GCS_HEADER, &command_long(1, command, params))
+            .expect("MAVLink send");
+    };
+    let pump_for = |wall: Duration| {
+        let until = Instant::now() + wall;
+        while Instant::now() < until {
+            pump();
+        }
+    };
+    // GUIDED, arm (refused until EKF3 has a position) and take off, all again until the
+    // take-off is accepted: armed at this pace, ArduPilot may disarm (10 s on the ground
+    // without a take-off) before the take-off arrives.
+    loop {
+        assert!(
+            Instant::now() < deadline,
+            "ArduPilot never took off: {:?}, {:?}",
+            last_texts(),
+            acks.lock().unwrap()
+        );
+        assert!(shared.lock().unwrap().error.is_none());
+        issue(
+            MavCmd::MAV_CMD_DO_SET_MODE,
+            [1.0, GUIDED, 0.0, 0.0, 0.0, 0.0, 0.0],
+        );
+        issue(
+            MavCmd::MAV_CMD_COMPONENT_ARM_DISARM,
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        );
+        pump_for(Duration::from_millis(300));
+        if !accepted(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM) {
+            continue;
+        }
+        issue(
+            MavCmd::MAV_CMD_NAV_TAKEOFF,
+            [
+                0.0,
+                0.0,
+                0.0,
+                f32::NAN,
+                f32::NAN,
+                f32::NAN,
+                HOVER_ALTITUDE_M as f32,
+            ],
+        );
+        pump_for(Duration::from_millis(200));
+        if accepted(MavCmd::MAV_CMD_NAV_TAKEOFF) {
+            break;
+        }
+    }
+    // GUIDED takes velocity setpoints as they come: no mode change.
+    let step_at_s = fly_step(&shared, deadline, pump, |_| {});
+    stop.store(true, Ordering::Relaxed);
+    let speedup = world.join().unwrap();
+    let samples = std::mem::take(&mut shared.lock().unwrap().samples);
+    eprintln!(
+        "ArduPilot: step at t = {step_at_s:.1} s, {speedup:.1}× real time, {:.1} s wall",
+        wall.elapsed().as_secs_f64()
+    );
+    (response(&samples, step_at_s), samples, step_at_s)
+}
+
+/// The built-in vehicle with `params` on the same flight: take-off to 5 m, a settled hover,
+/// offboard setpoints every 50 ms, the step; the world at 100 Hz.
+fn builtin_response(params: VehicleParams) -> Response {
+    let mut world = calm_world();
+    let mut vehicle = Multirotor::on_ground(params, Vector3::zeros()).unwrap();
+    let dt = SAMPLE_PERIOD_S;
+    let mut t = 0.0;
+    vehicle.command(AutopilotCommand::Arm, t).unwrap();
+    vehicle
+        .command(
+            AutopilotCommand::Takeoff {
+                altitude_m: HOVER_ALTITUDE_M,
+            },
+            t,
+        )
+        .unwrap();
+    let mut samples = Vec::new();
+    let mut advance = |vehicle: &mut Multirotor, t: &mut f64, samples: &mut Vec<Sample>| {
+        world.step(*t, dt, vehicle).unwrap();
+        *t += dt;
+        samples.push(Sample {
+            time_s: *t,
+            north_m_s: vehicle.velocity_ned_m_s().x,
+            tilt_deg: vehicle.tilt_rad().to_degrees(),
+        });
+    };
+    while (-vehicle.position_ned_m().z - HOVER_ALTITUDE_M).abs() >= 0.5 {
+        assert!(t < 60.0, "the built-in never reached 5 m");
+        advance(&mut vehicle, &mut t, &mut samples);
+    }
+    let settle_until = t + 3.0;
+    while t < settle_until {
+        advance(&mut vehicle, &mut t, &mut samples);
+    }
+    let setpoint = |north: f64| AutopilotCommand::VelocitySetpoint {
+        velocity_ned_m_s: Vector3::new(north, 0.0, 0.0),
+        yaw_rad: None,
+    };
+    vehicle.command(setpoint(0.0), t).unwrap();
+    vehicle
+        .command(AutopilotCommand::SetMode(FlightMode::Offboard), t)
+        .unwrap();
+    let step_at_s = t + 2.5;
+    let end_s = step_at_s + 2.0 * STEP_HOLD_S + 0.2;
+    let mut next_setpoint_s = t + SETPOINT_PERIOD_S;
+    while t < end_s {
+        if t >= next_setpoint_s - 1e-9 {
+            vehicle
+                .command(setpoint(north_setpoint(t, Some(step_at_s))), t)
+                .unwrap();
+            next_setpoint_s = t + SETPOINT_PERIOD_S;
+        }
+        advance(&mut vehicle, &mut t, &mut samples);
+    }
+    assert_eq!(vehicle.mode(), FlightMode::Offboard);
+    response(&samples, step_at_s)
+}
+
+/// The candidate built-in parameters whose response is nearest PX4's: rise and settling time
+/// (log of the ratio), peak tilt (per 10°) and overshoot (per 10 %), up and down.
+fn nearest_to(px4: &Response) -> Vec<(f64, VehicleParams, Response)> {
+    let distance = |r: &Response| {
+        [(r.up, px4.up), (r.down, px4.down)]
+            .iter()
+            .map(|(b, p)| {
+                let rise = match (b.rise_63_s, p.rise_63_s) {
+                    (Some(b), Some(p)) => (b / p).ln().abs(),
+                    _ => 10.0,
+                };
+                let settling = match (b.settling_s, p.settling_s) {
+                    (Some(b), Some(p)) => (b / p).ln().abs(),
+                    _ => 10.0,
+                };
+                rise + settling
+                    + (b.peak_tilt_deg - p.peak_tilt_deg).abs() / 10.0
+                    + (b.overshoot - p.overshoot).abs() / 0.1
+            })
+            .sum::<f64>()
+    };
+    let mut candidates = Vec::new();
+    for tau in [0.05, 0.1, 0.15, 0.2, 0.3] {
+        for p in [0.8, 1.0, 1.2, 1.5, 1.8, 2.2, 2.7, 3.5] {
+            for i in [0.1, 0.4, 1.0] {
+                let params = VehicleParams {
+                    attitude_time_constant_s: tau,
+                    velocity_p_horizontal_per_s: p,
+                    velocity_i_horizontal_per_s2: i,
+                    ..Default::default()
+                };
+                let r = builtin_response(params);
+                candidates.push((distance(&r), params, r));
+            }
+        }
+    }
+    candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
+    candidates.truncate(3);
+    candidates
+}
+
+#[test]
+fn step_figures_of_a_first_order_response() {
+    // 0 → 2 m/s at t = 1 s with a 0.5 s time constant, back to 0 at 7 s.
+    let samples: Vec<Sample> = (0..1400)
+        .map(|k| {
+            let t = k as f64 * 0.01;
+            let v = if t < 1.0 {
+                0.0
+            } else if t < 7.0 {
+                2.0 * (1.0 - (-(t - 1.0) / 0.5).exp())
+            } else {
+                2.0 * (1.0 - (-6.0f64 / 0.5).exp()) * (-(t - 7.0) / 0.5).exp()
+            };
+            Sample {
+                time_s: t,
+                north_m_s: v,
+                tilt_deg: 0.0,
+            }
+        })
+        .collect();
+    let r = response(&samples, 1.0);
+    for f in [r.up, r.down] {
+        assert!((f.rise_63_s.unwrap() - 0.5).abs() < 0.02, "{f:?}");
+        assert!(f.overshoot.abs() < 0.01, "{f:?}");
+        // ln(10) τ = 1.15 s into the ±10 % band.
+        assert!((f.settling_s.unwrap() - 1.15).abs() < 0.03, "{f:?}");
+        assert!(f.reached);
+    }
+}
+
+#[test]
+fn the_builtin_follows_px4_and_ardupilot_on_a_velocity_step() {
+    let wall = Instant::now();
+    let (Some(px4_dir), Some(ardupilot_dir)) =
+        (shared_dir("px4-sitl"), shared_dir("ardupilot-sitl"))
+    else {
+        eprintln!("skipped: ../shared/px4-sitl or ../shared/ardupilot-sitl is absent");
+        return;
+    };
+    // One after the other: each SITL and its world take a core.
+    let (px4, _, _) = px4_response(&px4_dir);
+    let (ardupilot, _, _) = ardupilot_response(&ardupilot_dir);
+    let builtin = builtin_response(VehicleParams::default());
+    let nearest = nearest_to(&px4);
+    let mut rows = vec![
+        ("PX4 v1.16 (none_iris)", px4),
+        ("ArduPilot 4.6.3 (JSON)", ardupilot),
+        ("built-in (default)", builtin),
+    ];
+    for (k, (_, _, r)) in nearest.iter().enumerate() {
+        rows.push((["candidate 1", "candidate 2", "candidate 3"][k], *r));
+    }
+    print_table(&rows);
+    for (k, (d, p, _)) in nearest.iter().enumerate() {
+        eprintln!(
+            "candidate {}: attitude_time_constant_s {}, velocity_p_horizontal_per_s {}, velocity_i_horizontal_per_s2 {} (distance {d:.2})",
+            k + 1,
+            p.attitude_time_constant_s,
+            p.velocity_p_horizontal_per_s,
+            p.velocity_i_horizontal_per_s2
+        );
+    }
+    eprintln!("wall time {:.1} s", wall.elapsed().as_secs_f64());
+
+    // The real autopilots follow the step: the test drives them right.
+    for (name, r) in [("PX4", px4), ("ArduPilot", ardupilot)] {
+        assert!(
+            r.up.reached && r.down.reached,
+            "{name} did not follow the step: {r:?}"
+        );
+    }
+    // The built-in against PX4.
+    let best = &nearest[0].1;
+    let suggestion = format!(
+        "nearest candidate: attitude_time_constant_s {}, velocity_p_horizontal_per_s {}, velocity_i_horizontal_per_s2 {}",
+        best.attitude_time_constant_s,
+        best.velocity_p_horizontal_per_s,
+        best.velocity_i_horizontal_per_s2
+    );
+    for (label, b, p) in [("up", builtin.up, px4.up), ("down", builtin.down, px4.down)] {
+        let (Some(rise_b), Some(rise_p)) = (b.rise_63_s, p.rise_63_s) else {
+            panic!("step {label}: no 63 % rise: built-in {b:?}, PX4 {p:?}");
+        };
+        let ratio = rise_b / rise_p;
+        assert!(
+            (0.5..=2.0).contains(&ratio),
+            "step {label}: the built-in's 63 % rise {rise_b:.2} s is {ratio:.2}× PX4's {rise_p:.2} s (allowed 0.5–2); {suggestion}"
+        );
+        let gap = b.peak_tilt_deg - p.peak_tilt_deg;
+        assert!(
+            gap.abs() <= 10.0,
+            "step {label}: the built-in's peak tilt {:.1}° is {gap:+.1}° from PX4's {:.1}° (allowed ±10°); {suggestion}",
+            b.peak_tilt_deg,
+            p.peak_tilt_deg
+        );
+    }
+}
