@@ -14,7 +14,7 @@ use thiserror::Error;
 use crate::camera::VehiclePose;
 use crate::tractor::PadState;
 use crate::vehicle::{
-    range_to_surface_m, resting_state, touchdown_crossing, Contact, Touchdown, VehicleParams,
+    range_to_surface_m, resting_state, touchdown_crossing, Contact, Drag, Touchdown, VehicleParams,
 };
 
 const GRAVITY_M_S2: f64 = 9.80665;
@@ -53,17 +53,12 @@ pub struct QuadrotorParams {
     pub motor_time_constant_down_s: f64,
     /// Aerodynamic damping of the body rates, N·m per rad/s (small: the rotors' flapping).
     pub rotational_damping_n_m_s: f64,
-    /// Translational drag: the built-in vehicle's coefficients, so both bodies feel the same
-    /// air (see [`VehicleParams`]).
-    pub drag_linear_horizontal_n_s_per_m: f64,
-    pub drag_quadratic_horizontal_n_s2_per_m2: f64,
-    pub drag_linear_vertical_n_s_per_m: f64,
-    pub drag_quadratic_vertical_n_s2_per_m2: f64,
+    /// Translational drag: the built-in vehicle's, so both bodies feel the same air.
+    pub drag: Drag,
 }
 
 impl Default for QuadrotorParams {
     fn default() -> Self {
-        let drag = VehicleParams::default();
         let rotor = |px: f64, py: f64, km: f64| Rotor {
             position_frd_m: Vector2::new(px, py),
             moment_coefficient_m: km,
@@ -81,10 +76,7 @@ impl Default for QuadrotorParams {
             motor_time_constant_up_s: 0.0125,
             motor_time_constant_down_s: 0.025,
             rotational_damping_n_m_s: 0.003,
-            drag_linear_horizontal_n_s_per_m: drag.drag_linear_horizontal_n_s_per_m,
-            drag_quadratic_horizontal_n_s2_per_m2: drag.drag_quadratic_horizontal_n_s2_per_m2,
-            drag_linear_vertical_n_s_per_m: drag.drag_linear_vertical_n_s_per_m,
-            drag_quadratic_vertical_n_s2_per_m2: drag.drag_quadratic_vertical_n_s2_per_m2,
+            drag: VehicleParams::default().drag(),
         }
     }
 }
@@ -345,19 +337,6 @@ impl Quadrotor {
         (Vector3::new(0.0, 0.0, -thrust_n), torque)
     }
 
-    fn drag_n(&self) -> Vector3<f64> {
-        let p = &self.params;
-        let v = self.state.velocity_ned_m_s;
-        let vh = v.xy();
-        let horizontal = -vh
-            * (p.drag_linear_horizontal_n_s_per_m
-                + p.drag_quadratic_horizontal_n_s2_per_m2 * vh.norm());
-        let vertical = -v.z
-            * (p.drag_linear_vertical_n_s_per_m
-                + p.drag_quadratic_vertical_n_s2_per_m2 * v.z.abs());
-        Vector3::new(horizontal.x, horizontal.y, vertical)
-    }
-
     #[allow(clippy::too_many_arguments)]
     fn substep(
         &mut self,
@@ -381,7 +360,7 @@ impl Quadrotor {
         let (thrust_frd, torque_frd) = self.rotor_wrench();
         let force = self.state.attitude * thrust_frd
             + Vector3::new(0.0, 0.0, p.mass_kg * GRAVITY_M_S2)
-            + self.drag_n()
+            + p.drag.force_n(&self.state.velocity_ned_m_s)
             + wind_force_ned_n;
         let previous_velocity = self.state.velocity_ned_m_s;
 

@@ -22,7 +22,7 @@ use crate::tractor::PadState;
 
 mod dynamics;
 mod params;
-pub use params::VehicleParams;
+pub use params::{Drag, VehicleParams};
 
 const GRAVITY_M_S2: f64 = 9.80665;
 /// Integration sub-step: larger steps are split so the dynamics stay stable.

@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 const REPEATS: u64 = 2;
 /// An instance no test uses.
-const PX4_INSTANCE: u8 = 9;
+const PX4_INSTANCE: u8 = 0;
 
 fn main() {
     let start = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/px4-sitl/start");

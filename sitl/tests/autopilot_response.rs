@@ -29,6 +29,10 @@ use sim::world::World;
 use sitl::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
 use sitl::hil::px4::{Px4Hil, Px4Vehicle};
 
+#[path = "autopilot_response/figures.rs"]
+mod figures;
+use figures::{north_setpoint, print_table, response, Response, Sample, STEP_HOLD_S};
+
 /// Instances no other test uses: PX4 9 (HIL TCP 4569, onboard UDP 14549, system 10) and
 /// ArduPilot 9 (MAVLink TCP 5850, JSON UDP 9092; 7 is what `qosrt evaluate` runs were seen on).
 const PX4_INSTANCE: u8 = 9;
@@ -36,132 +40,11 @@ const ARDUPILOT_INSTANCE: u8 = 9;
 const ARDUPILOT_WORLD_ARGS: &str = "-M JSON:127.0.0.1 -s 100 -P FRAME_TYPE=1 -P RNGFND1_TYPE=100 -P BATT_MONITOR=0 -P ANGLE_MAX=4500 -O 47.397742,8.545594,488,0";
 
 const HOVER_ALTITUDE_M: f64 = 5.0;
-const STEP_SPEED_M_S: f64 = 2.0;
-const STEP_HOLD_S: f64 = 6.0;
 const SAMPLE_PERIOD_S: f64 = 0.01;
 const SETPOINT_PERIOD_S: f64 = 0.05;
 /// Velocity only, in LOCAL_NED: position, acceleration, yaw and yaw rate ignored (3527).
 const VELOCITY_TYPE_MASK: u16 = 3527;
 const GUIDED: f32 = 4.0;
-
-/// One sample of the world's truth.
-#[derive(Debug, Clone, Copy)]
-struct Sample {
-    time_s: f64,
-    north_m_s: f64,
-    tilt_deg: f64,
-}
-
-/// The velocity north the step asks for at `time_s`.
-fn north_setpoint(time_s: f64, step_at_s: Option<f64>) -> f64 {
-    match step_at_s {
-        Some(at) if time_s >= at && time_s < at + STEP_HOLD_S => STEP_SPEED_M_S,
-        _ => 0.0,
-    }
-}
-
-/// The figures of one step (up or down).
-#[derive(Debug, Clone, Copy)]
-struct StepFigures {
-    /// From the step to 5 % of the way: the dead time, the setpoint's transport included.
-    delay_5_s: Option<f64>,
-    /// From the step to 63 % of the way to the target.
-    rise_63_s: Option<f64>,
-    /// Peak progress past the target, as a fraction of the step (peak speed / 2 m/s − 1 up).
-    overshoot: f64,
-    peak_tilt_deg: f64,
-    /// From the step until the speed stays within ±10 % of the step around the target.
-    settling_s: Option<f64>,
-    /// Whether the speed came within 0.3 m/s of the target in the window.
-    reached: bool,
-}
-
-fn step_figures(
-    samples: &[Sample],
-    from_s: f64,
-    to_s: f64,
-    start: f64,
-    target: f64,
-) -> StepFigures {
-    let window: Vec<&Sample> = samples
-        .iter()
-        .filter(|s| s.time_s >= from_s && s.time_s < to_s)
-        .collect();
-    let step = target - start;
-    let progress = |s: &Sample| (s.north_m_s - start) / step;
-    let delay_5_s = window
-        .iter()
-        .find(|s| progress(s) >= 0.05)
-        .map(|s| s.time_s - from_s);
-    let rise_63_s = window
-        .iter()
-        .find(|s| progress(s) >= 0.63)
-        .map(|s| s.time_s - from_s);
-    let overshoot = window.iter().map(|s| progress(s)).fold(f64::MIN, f64::max) - 1.0;
-    let peak_tilt_deg = window.iter().map(|s| s.tilt_deg).fold(0.0, f64::max);
-    let band = 0.1 * step.abs();
-    let outside = |s: &Sample| (s.north_m_s - target).abs() > band;
-    let settling_s = match window.iter().rposition(|s| outside(s)) {
-        None => Some(0.0),
-        Some(last) if last + 1 < window.len() => Some(window[last + 1].time_s - from_s),
-        Some(_) => None,
-    };
-    let reached = window.iter().any(|s| (s.north_m_s - target).abs() <= 0.3);
-    StepFigures {
-        delay_5_s,
-        rise_63_s,
-        overshoot,
-        peak_tilt_deg,
-        settling_s,
-        reached,
-    }
-}
-
-/// A vehicle's response: the step up and the step down.
-#[derive(Debug, Clone, Copy)]
-struct Response {
-    up: StepFigures,
-    down: StepFigures,
-}
-
-fn response(samples: &[Sample], step_at_s: f64) -> Response {
-    let down_at_s = step_at_s + STEP_HOLD_S;
-    Response {
-        up: step_figures(samples, step_at_s, down_at_s, 0.0, STEP_SPEED_M_S),
-        down: step_figures(
-            samples,
-            down_at_s,
-            down_at_s + STEP_HOLD_S,
-            STEP_SPEED_M_S,
-            0.0,
-        ),
-    }
-}
-
-fn seconds(value: Option<f64>) -> String {
-    value.map_or_else(|| "never".to_string(), |v| format!("{v:.2} s"))
-}
-
-fn print_table(rows: &[(&str, Response)]) {
-    eprintln!(
-        "{:<26} {:>5} {:>9} {:>9} {:>10} {:>10} {:>10}",
-        "vehicle", "step", "delay 5%", "rise 63%", "overshoot", "peak tilt", "settling"
-    );
-    for (name, r) in rows {
-        for (label, f) in [("up", r.up), ("down", r.down)] {
-            eprintln!(
-                "{:<26} {:>5} {:>9} {:>9} {:>9.1}% {:>9.1}° {:>10}",
-                name,
-                label,
-                seconds(f.delay_5_s),
-                seconds(f.rise_63_s),
-                100.0 * f.overshoot,
-                f.peak_tilt_deg,
-                seconds(f.settling_s)
-            );
-        }
-    }
-}
 
 fn tilt_deg(state: &BodyState) -> f64 {
     let z = state.attitude * Vector3::z();
@@ -570,7 +453,9 @@ fn ardupilot_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
     // GUIDED, arm (refused until EKF3 has a position) and take off, all again until the
     // take-off is accepted: armed at this pace, ArduPilot may disarm (10 s on the ground
     // without a take-off) before the take-off arrives.
+    let mut tries = 0;
     loop {
+        tries += 1;
         assert!(
             Instant::now() < deadline,
             "ArduPilot never took off: {:?}, {:?}",
@@ -607,6 +492,11 @@ fn ardupilot_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
             break;
         }
     }
+    eprintln!(
+        "ArduPilot: took off at t = {:.1} s after {tries} tries; its last words {:?}",
+        shared.lock().unwrap().time_s,
+        last_texts()
+    );
     // GUIDED takes velocity setpoints as they come: no mode change.
     let step_at_s = fly_step(&shared, deadline, pump, |_| {});
     stop.store(true, Ordering::Relaxed);
@@ -716,36 +606,6 @@ fn nearest_to(px4: &Response) -> Vec<(f64, VehicleParams, Response)> {
     candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
     candidates.truncate(3);
     candidates
-}
-
-#[test]
-fn step_figures_of_a_first_order_response() {
-    // 0 → 2 m/s at t = 1 s with a 0.5 s time constant, back to 0 at 7 s.
-    let samples: Vec<Sample> = (0..1400)
-        .map(|k| {
-            let t = k as f64 * 0.01;
-            let v = if t < 1.0 {
-                0.0
-            } else if t < 7.0 {
-                2.0 * (1.0 - (-(t - 1.0) / 0.5).exp())
-            } else {
-                2.0 * (1.0 - (-6.0f64 / 0.5).exp()) * (-(t - 7.0) / 0.5).exp()
-            };
-            Sample {
-                time_s: t,
-                north_m_s: v,
-                tilt_deg: 0.0,
-            }
-        })
-        .collect();
-    let r = response(&samples, 1.0);
-    for f in [r.up, r.down] {
-        assert!((f.rise_63_s.unwrap() - 0.5).abs() < 0.02, "{f:?}");
-        assert!(f.overshoot.abs() < 0.01, "{f:?}");
-        // ln(10) τ = 1.15 s into the ±10 % band.
-        assert!((f.settling_s.unwrap() - 1.15).abs() < 0.03, "{f:?}");
-        assert!(f.reached);
-    }
 }
 
 #[test]

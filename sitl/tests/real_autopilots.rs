@@ -167,10 +167,10 @@ fn the_real_ardupilot_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts()
 #[test]
 fn an_autopilot_that_never_connects_is_a_named_error_within_seconds() {
     let started = Instant::now();
-    // Nobody starts a PX4 on instance 9: the world waits 1 s for it.
+    // Nobody starts a PX4 on instance 109 (beyond the start script's 0-9): the world waits 1 s.
     let Err(error) = try_fly(RealAutopilot {
         kind: AutopilotKind::Px4,
-        instance: 9,
+        instance: 109,
         command: None,
         connect_timeout: Duration::from_secs(1),
     }) else {
@@ -178,14 +178,14 @@ fn an_autopilot_that_never_connects_is_a_named_error_within_seconds() {
     };
     let text = error.to_string();
     assert!(
-        text.contains("no PX4 connected to TCP 127.0.0.1:4569"),
+        text.contains("no PX4 connected to TCP 127.0.0.1:4669"),
         "{text}"
     );
     assert!(started.elapsed() < Duration::from_secs(5));
     // A command that exits at once: its words are in the error.
     let Err(error) = try_fly(RealAutopilot {
         kind: AutopilotKind::ArduPilot,
-        instance: 9,
+        instance: 19,
         command: Some("echo 'arducopter: no such model' >&2; exit 3".into()),
         connect_timeout: Duration::from_secs(1),
     }) else {

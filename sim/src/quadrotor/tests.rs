@@ -15,10 +15,12 @@ fn far_pad() -> PadState {
 
 fn still_air() -> QuadrotorParams {
     QuadrotorParams {
-        drag_linear_horizontal_n_s_per_m: 0.0,
-        drag_quadratic_horizontal_n_s2_per_m2: 0.0,
-        drag_linear_vertical_n_s_per_m: 0.0,
-        drag_quadratic_vertical_n_s2_per_m2: 0.0,
+        drag: crate::vehicle::Drag {
+            linear_horizontal_n_s_per_m: 0.0,
+            quadratic_horizontal_n_s2_per_m2: 0.0,
+            linear_vertical_n_s_per_m: 0.0,
+            quadratic_vertical_n_s2_per_m2: 0.0,
+        },
         rotational_damping_n_m_s: 0.0,
         ..QuadrotorParams::default()
     }

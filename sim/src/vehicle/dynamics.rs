@@ -112,16 +112,7 @@ impl Multirotor {
     }
 
     fn drag_n(&self) -> Vector3<f64> {
-        let p = &self.params;
-        let v = self.velocity_ned_m_s;
-        let vh = v.xy();
-        let horizontal = -vh
-            * (p.drag_linear_horizontal_n_s_per_m
-                + p.drag_quadratic_horizontal_n_s2_per_m2 * vh.norm());
-        let vertical = -v.z
-            * (p.drag_linear_vertical_n_s_per_m
-                + p.drag_quadratic_vertical_n_s2_per_m2 * v.z.abs());
-        Vector3::new(horizontal.x, horizontal.y, vertical)
+        self.params.drag().force_n(&self.velocity_ned_m_s)
     }
 
     #[allow(clippy::too_many_arguments)]

@@ -1,5 +1,7 @@
 //! The vehicle's and its autopilot's parameters, and the checks they must pass.
 
+use nalgebra::Vector3;
+
 use super::{VehicleError, GRAVITY_M_S2};
 
 /// Vehicle and autopilot parameters; PX4 names in brackets.
@@ -94,7 +96,40 @@ impl Default for VehicleParams {
     }
 }
 
+/// The body's translational drag in still air, −(c1 + c2·|v|)·v horizontally and vertically.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Drag {
+    pub linear_horizontal_n_s_per_m: f64,
+    pub quadratic_horizontal_n_s2_per_m2: f64,
+    pub linear_vertical_n_s_per_m: f64,
+    pub quadratic_vertical_n_s2_per_m2: f64,
+}
+
+impl Drag {
+    /// The force on a body moving at `velocity_ned_m_s`, NED.
+    pub fn force_n(&self, velocity_ned_m_s: &Vector3<f64>) -> Vector3<f64> {
+        let v = velocity_ned_m_s;
+        let vh = v.xy();
+        let horizontal = -vh
+            * (self.linear_horizontal_n_s_per_m
+                + self.quadratic_horizontal_n_s2_per_m2 * vh.norm());
+        let vertical = -v.z
+            * (self.linear_vertical_n_s_per_m + self.quadratic_vertical_n_s2_per_m2 * v.z.abs());
+        Vector3::new(horizontal.x, horizontal.y, vertical)
+    }
+}
+
 impl VehicleParams {
+    /// Its drag coefficients.
+    pub fn drag(&self) -> Drag {
+        Drag {
+            linear_horizontal_n_s_per_m: self.drag_linear_horizontal_n_s_per_m,
+            quadratic_horizontal_n_s2_per_m2: self.drag_quadratic_horizontal_n_s2_per_m2,
+            linear_vertical_n_s_per_m: self.drag_linear_vertical_n_s_per_m,
+            quadratic_vertical_n_s2_per_m2: self.drag_quadratic_vertical_n_s2_per_m2,
+        }
+    }
+
     pub fn validate(&self) -> Result<(), VehicleError> {
         for (name, value) in [
             ("mass_kg", self.mass_kg),
