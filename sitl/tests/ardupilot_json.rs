@@ -3,8 +3,6 @@
 //! world's IMU, position and rangefinder, its controllers fly the world's body in the world's
 //! wind, as fast as both sides answer. Skips, saying why, without `../shared/ardupilot-sitl`.
 
-use std::path::PathBuf;
-use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -20,6 +18,9 @@ use sim::wind::{Wind, WindConfig};
 use sim::world::World;
 use sitl::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
 
+mod common;
+use common::{shared_dir, start, SitlProcess};
+
 /// Ports 5800 (MAVLink), 14590, 9042 (JSON): no other test's (ArduPilot 1 and 2, PX4 0–9).
 const INSTANCE: u8 = 4;
 const TAKEOFF_ALTITUDE_M: f64 = 5.0;
@@ -28,57 +29,35 @@ const LAND: f32 = 9.0;
 /// The world's trace of the true position, every 50 ms of simulated time.
 const TRACE_PERIOD_S: f64 = 0.05;
 
-/// arducopter, stopped when dropped (a failed assertion included).
-struct ArduPilotProcess(u32);
-
-impl Drop for ArduPilotProcess {
-    fn drop(&mut self) {
-        // SIGKILL: arducopter waiting for a JSON answer that no longer comes loops in its
-        // receive and never sees SIGTERM.
-        let _ = Command::new("kill")
-            .args(["-9", &self.0.to_string()])
-            .status();
-    }
-}
-
-fn start_ardupilot() -> Option<ArduPilotProcess> {
-    let start = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/ardupilot-sitl/start");
-    if !start.exists() {
-        eprintln!("skipped: {} is absent", start.display());
-        return None;
-    }
+fn start_ardupilot() -> Option<SitlProcess> {
+    let dir = shared_dir("ardupilot-sitl")?;
     let home = Home::default();
-    let output = Command::new(&start)
-        .args(["-I", &INSTANCE.to_string(), "-M", "JSON:127.0.0.1"])
+    let home = format!(
+        "{},{},{},0",
+        home.latitude_deg, home.longitude_deg, home.altitude_m
+    );
+    let instance = INSTANCE.to_string();
+    let args = [
+        "-I",
+        &instance,
+        "-M",
+        "JSON:127.0.0.1",
         // Its pacing: sleep only to keep the simulated clock at 100× the wall clock, i.e.
         // never here: the world and ArduPilot run as fast as they answer each other.
-        .args(["-s", "100"])
+        "-s",
+        "100",
         // The bundled copter.parm flies a quad "+" (FRAME_TYPE 0); the world's body is the
         // quad X whose rotor order the servo channels follow.
-        .args(["-P", "FRAME_TYPE=1"])
+        "-P",
+        "FRAME_TYPE=1",
         // Read the world's downward rangefinder (`rng_1`) as rangefinder 1.
-        .args(["-P", "RNGFND1_TYPE=100"])
+        "-P",
+        "RNGFND1_TYPE=100",
         // ArduPilot's home is the world's (sim::sensors::Home), not SITL's default in Canberra.
-        .args([
-            "-O",
-            &format!(
-                "{},{},{},0",
-                home.latitude_deg, home.longitude_deg, home.altitude_m
-            ),
-        ])
-        .stdin(Stdio::null())
-        .output()
-        .expect("the ArduPilot start script runs");
-    assert!(
-        output.status.success(),
-        "ArduPilot did not start: {}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let pid = String::from_utf8_lossy(&output.stdout)
-        .trim()
-        .parse()
-        .expect("the start script prints arducopter's pid");
-    Some(ArduPilotProcess(pid))
+        "-O",
+        &home,
+    ];
+    Some(start(&dir, &args, &[]))
 }
 
 /// What the world thread shares: the truth ArduPilot does not see.

@@ -7,8 +7,7 @@
 //! ArduPilot fly one after the other, never together.
 
 use std::net::{SocketAddr, UdpSocket};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
@@ -29,6 +28,8 @@ use sim::world::World;
 use sitl::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
 use sitl::hil::px4::{Px4Hil, Px4Vehicle};
 
+mod common;
+use common::{shared_dir, start};
 #[path = "autopilot_response/figures.rs"]
 mod figures;
 use figures::{north_setpoint, print_table, response, Response, Sample, STEP_HOLD_S};
@@ -153,46 +154,6 @@ const GCS_HEADER: MavHeader = MavHeader {
     component_id: 190,
     sequence: 0,
 };
-
-/// A SITL process, killed (SIGKILL: both ignore SIGTERM while waiting for their simulator)
-/// when dropped, a failed assertion included.
-struct Process(u32);
-
-impl Drop for Process {
-    fn drop(&mut self) {
-        let _ = Command::new("kill")
-            .args(["-9", &self.0.to_string()])
-            .status();
-    }
-}
-
-fn shared_dir(name: &str) -> Option<PathBuf> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared")
-        .join(name);
-    path.join("start").exists().then_some(path)
-}
-
-fn start(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Process {
-    let output = Command::new(dir.join("start"))
-        .args(args)
-        .envs(env.iter().copied())
-        .stdin(Stdio::null())
-        .output()
-        .expect("the start script runs");
-    assert!(
-        output.status.success(),
-        "{} did not start: {}",
-        dir.display(),
-        String::from_utf8_lossy(&output.stderr)
-    );
-    Process(
-        String::from_utf8_lossy(&output.stdout)
-            .trim()
-            .parse()
-            .expect("the start script prints the pid"),
-    )
-}
 
 /// Waits, checking the world, until `done` holds for the shared state or the deadline passes.
 fn wait_until(

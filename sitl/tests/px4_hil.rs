@@ -3,8 +3,6 @@
 //! fly the world's body in the world's wind. Skips, saying why, without `../shared/px4-sitl`.
 
 use std::net::UdpSocket;
-use std::path::PathBuf;
-use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -20,39 +18,18 @@ use sim::wind::{Wind, WindConfig};
 use sim::world::World;
 use sitl::hil::px4::{Px4Hil, Px4Vehicle};
 
+mod common;
+use common::{shared_dir, start, SitlProcess};
+
 const INSTANCE: u8 = 5;
 
-struct Px4Process(u32);
-
-impl Drop for Px4Process {
-    fn drop(&mut self) {
-        // PX4 still waiting for its simulator ignores SIGTERM.
-        let _ = Command::new("kill")
-            .args(["-9", &self.0.to_string()])
-            .status();
-    }
-}
-
-fn start_px4() -> Option<Px4Process> {
-    let start = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/px4-sitl/start");
-    if !start.exists() {
-        eprintln!("skipped: {} is absent", start.display());
-        return None;
-    }
-    let output = Command::new(&start)
-        .args(["-i", &INSTANCE.to_string(), "-m", "none_iris"])
-        .output()
-        .expect("the PX4 start script runs");
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-    let pid = String::from_utf8_lossy(&output.stdout)
-        .trim()
-        .parse()
-        .unwrap();
-    Some(Px4Process(pid))
+fn start_px4() -> Option<SitlProcess> {
+    let dir = shared_dir("px4-sitl")?;
+    Some(start(
+        &dir,
+        &["-i", &INSTANCE.to_string(), "-m", "none_iris"],
+        &[],
+    ))
 }
 
 #[derive(Debug, Default, Clone)]

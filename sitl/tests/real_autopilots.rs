@@ -16,7 +16,7 @@ use runtime::registry::PluginRegistry;
 use sim::outcome::SimOutcome;
 use sim::tractor::PathKind;
 use sitl::mission::{simulate, AutopilotKind, RealAutopilot, SimError, SimOptions};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 /// PX4 and ArduPilot instances no other test of this crate uses.
@@ -34,19 +34,10 @@ const ARDUPILOT_INSTANCE: u8 = 5;
 /// home, and no pacing of its own (the world sets the pace).
 const ARDUPILOT_WORLD_ARGS: &str = "-M JSON:127.0.0.1 -s 100 -P FRAME_TYPE=1 -P RNGFND1_TYPE=100 -P BATT_MONITOR=0 -P ANGLE_MAX=4500 -O 47.397742,8.545594,488,0";
 
-static CORES: std::sync::Mutex<()> = std::sync::Mutex::new(());
+mod common;
+use common::shared_dir;
 
-fn shared(name: &str) -> Option<PathBuf> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared")
-        .join(name);
-    if path.exists() {
-        Some(path)
-    } else {
-        eprintln!("skipped: {} is absent", path.display());
-        None
-    }
-}
+static CORES: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// The reference mission; with `body_camera`, its camera fixed to the body (ArduPilot's link
 /// carries no gimbal of the world's).
@@ -130,7 +121,7 @@ fn assert_flew_the_mission(autopilot: &str, outcome: &SimOutcome, control_event:
 
 #[test]
 fn the_real_px4_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts() {
-    let Some(start) = shared("px4-sitl/start") else {
+    let Some(dir) = shared_dir("px4-sitl") else {
         return;
     };
     let outcome = fly(RealAutopilot {
@@ -138,7 +129,7 @@ fn the_real_px4_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts() {
         instance: PX4_INSTANCE,
         command: Some(format!(
             "PX4_PARAMS='{PX4_MOVING_PAD_PARAMS}' {} -i {{i}} -m none_iris",
-            start.display()
+            dir.join("start").display()
         )),
         connect_timeout: Duration::from_secs(30),
     })
@@ -148,7 +139,7 @@ fn the_real_px4_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts() {
 
 #[test]
 fn the_real_ardupilot_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts() {
-    let Some(start) = shared("ardupilot-sitl/start") else {
+    let Some(dir) = shared_dir("ardupilot-sitl") else {
         return;
     };
     let outcome = fly(RealAutopilot {
@@ -156,7 +147,7 @@ fn the_real_ardupilot_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts()
         instance: ARDUPILOT_INSTANCE,
         command: Some(format!(
             "{} -I {{i}} {ARDUPILOT_WORLD_ARGS}",
-            start.display()
+            dir.join("start").display()
         )),
         connect_timeout: Duration::from_secs(30),
     })
