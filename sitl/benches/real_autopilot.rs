@@ -39,7 +39,10 @@ fn main() {
         connect_timeout: Duration::from_secs(30),
     };
     let mut speeds = Vec::new();
-    for (label, autopilot) in [("built-in (baseline)", None), ("PX4 HIL in lockstep", Some(px4))] {
+    for (label, autopilot) in [
+        ("built-in (baseline)", None),
+        ("PX4 HIL in lockstep", Some(px4)),
+    ] {
         let mut best: f64 = 0.0;
         let mut simulated_s = 0.0;
         for seed in 0..REPEATS {
