@@ -20,6 +20,9 @@ use crate::vehicle::{
 const GRAVITY_M_S2: f64 = 9.80665;
 /// Integration sub-step: a 4 ms HIL step is split in four, well inside the rotational modes.
 const MAX_SUBSTEP_S: f64 = 0.001;
+/// How fast the landing gear stops the body on a surface (a skid's give: a 1 m/s touchdown
+/// peaks at about 3 g).
+const GEAR_TIME_CONSTANT_S: f64 = 0.03;
 
 /// One rotor: where it sits and which way it turns.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -364,27 +367,12 @@ impl Quadrotor {
             + wind_force_ned_n;
         let previous_velocity = self.state.velocity_ned_m_s;
 
-        // Resting on a surface: it holds the body level until the net force lifts it.
+        // Resting on a surface: it holds the body until the net force lifts it.
         if let Some(contact) = self.contact {
             if force.z < 0.0 {
                 self.contact = None;
             } else {
-                let (_, _, yaw) = self.state.attitude.euler_angles();
-                let (position, velocity, yaw) = resting_state(
-                    contact,
-                    self.state.position_ned_m,
-                    yaw,
-                    pad,
-                    previous_pad,
-                    pad_dt_s,
-                );
-                let previous_attitude = self.state.attitude;
-                self.state.position_ned_m = position;
-                self.state.velocity_ned_m_s = velocity;
-                self.state.acceleration_ned_m_s2 = (velocity - previous_velocity) / h;
-                self.state.attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
-                self.state.body_rates_rad_s =
-                    (previous_attitude.inverse() * self.state.attitude).scaled_axis() / h;
+                self.rest_on(contact, h, pad, previous_pad, pad_dt_s);
                 return;
             }
         }
@@ -427,20 +415,50 @@ impl Quadrotor {
                 Contact::Ground
             });
             self.touchdowns.push(touchdown);
-            let (position, velocity, yaw) = resting_state(
+            // The surface takes over from the step's start: the gear's give absorbs the rest.
+            self.state.velocity_ned_m_s = previous_velocity;
+            self.rest_on(
                 self.contact.unwrap_or(Contact::Ground),
-                self.state.position_ned_m,
-                yaw,
+                h,
                 pad,
                 previous_pad,
                 pad_dt_s,
             );
-            self.state.position_ned_m = position;
-            self.state.velocity_ned_m_s = velocity;
-            self.state.acceleration_ned_m_s2 = (velocity - previous_velocity) / h;
-            self.state.attitude = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
-            self.state.body_rates_rad_s = Vector3::zeros();
         }
+    }
+
+    /// One sub-step on the surface: the body sits where the surface holds it; its velocity and
+    /// attitude settle to the surface's through the landing gear's give within tens of
+    /// milliseconds (not at once: an instant stop would read as a 100 g spike on the IMU, which
+    /// no real accelerometer reports and an estimator would take for a fault).
+    fn rest_on(
+        &mut self,
+        contact: Contact,
+        h: f64,
+        pad: &PadState,
+        previous_pad: &PadState,
+        pad_dt_s: f64,
+    ) {
+        let (_, _, yaw) = self.state.attitude.euler_angles();
+        let (position, surface_velocity, yaw) = resting_state(
+            contact,
+            self.state.position_ned_m,
+            yaw,
+            pad,
+            previous_pad,
+            pad_dt_s,
+        );
+        let give = 1.0 - (-h / GEAR_TIME_CONSTANT_S).exp();
+        let previous_velocity = self.state.velocity_ned_m_s;
+        let previous_attitude = self.state.attitude;
+        let velocity = previous_velocity + (surface_velocity - previous_velocity) * give;
+        let level = UnitQuaternion::from_euler_angles(0.0, 0.0, yaw);
+        let attitude = previous_attitude.slerp(&level, give);
+        self.state.position_ned_m = position;
+        self.state.velocity_ned_m_s = velocity;
+        self.state.acceleration_ned_m_s2 = (velocity - previous_velocity) / h;
+        self.state.attitude = attitude;
+        self.state.body_rates_rad_s = (previous_attitude.inverse() * attitude).scaled_axis() / h;
     }
 }
 

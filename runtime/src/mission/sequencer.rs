@@ -135,7 +135,7 @@ impl MissionPlan {
             command_timeout_s: 30.0,
             command_retry_s: 1.0,
             offboard_preamble_s: 0.5,
-            touchdown_confirm_s: 2.0,
+            touchdown_confirm_s: 5.0,
             control: true,
             vision_landing: true,
             only_phase: None,

@@ -21,6 +21,10 @@ const REACQUIRE_MAX_CATCH_UP_M_S: f64 = 3.0;
 /// Landed, the vehicle keeps asking to descend this fast: on the pad it holds the thrust low
 /// (an autopilot's land detector wants that), a few centimetres above it, it settles softly.
 const LANDED_PRESS_DOWN_M_S: f64 = 0.3;
+/// Landed stays Landed this long after the last sign of being down, whatever the height
+/// estimate says: longer than the autopilot takes to confirm a touchdown (see the sequencer's
+/// `touchdown_confirm_s`), shorter than any take-off to above LH.
+const LANDED_HOLD_S: f64 = 6.0;
 
 /// The state machine proper, with the PID's state.
 #[derive(Debug, Clone, PartialEq)]
@@ -32,6 +36,9 @@ pub(super) struct Machine {
     last_pid_time_s: Option<f64>,
     last_fix_time_s: Option<f64>,
     centred_since_s: Option<f64>,
+    /// The last step that said the vehicle is down (the autopilot's touchdown, or entering
+    /// Landed).
+    down_at_s: Option<f64>,
     hold_height_m: f64,
     /// The previous step's platform velocity, for its acceleration.
     previous_platform_velocity_ne_m_s: Option<Vector2<f64>>,
@@ -65,6 +72,7 @@ impl Machine {
             last_pid_time_s: None,
             last_fix_time_s: None,
             centred_since_s: None,
+            down_at_s: None,
             hold_height_m: config.initial_height_m,
             previous_platform_velocity_ne_m_s: None,
             platform_accel_ne_m_s2: Vector2::zeros(),
@@ -387,13 +395,24 @@ impl Machine {
                 || (self.mode == LandingMode::FinalLanding && height_m <= c.touchdown_height_m))
         {
             self.mode = LandingMode::Landed;
+            self.down_at_s = Some(time_s);
             return;
+        }
+        if input.touchdown_detected {
+            self.down_at_s = Some(time_s);
         }
         match self.mode {
             // Airborne again (a mission that starts on the ground, or a take-off after a
             // landing): the procedure starts over.
             LandingMode::Landed => {
-                if !input.touchdown_detected && height_m > c.final_landing_height_m {
+                // Only a vehicle clearly gone from the pad: near it the camera sees too little
+                // of the marker to tell the height (a real PX4 was sent climbing back to
+                // Search within 0.1 s of its touchdown, before its land detector agreed).
+                let down_for_s = self.down_at_s.map_or(f64::INFINITY, |at_s| time_s - at_s);
+                if !input.touchdown_detected
+                    && height_m > c.final_landing_height_m
+                    && down_for_s >= LANDED_HOLD_S
+                {
                     self.mode = LandingMode::Search;
                     self.search_displacement_ne_m = Vector2::zeros();
                     self.last_fix_time_s = None;

@@ -901,9 +901,13 @@ fn a_take_off_after_landed_starts_over() {
     // Climbing through 1 m (below LH): still Landed, nothing commanded.
     let climbing = input(1.0, None, 1.0);
     assert_eq!(c.step(&climbing).unwrap().mode, LandingMode::Landed);
-    let airborne = input(2.0, None, 5.0);
+    // Above LH 5 s after the last touchdown report: a height estimate's jump near the pad
+    // for all it knows, so still Landed; 6 s on, a take-off.
+    let airborne = input(5.0, None, 5.0);
+    assert_eq!(c.step(&airborne).unwrap().mode, LandingMode::Landed);
+    let airborne = input(6.0, None, 5.5);
     assert_eq!(c.step(&airborne).unwrap().mode, LandingMode::Search);
-    let seen = input(2.1, fix_at(0.5, 0.0, 7.5), 7.5);
+    let seen = input(6.1, fix_at(0.5, 0.0, 7.5), 7.5);
     assert_eq!(c.step(&seen).unwrap().mode, LandingMode::Follow);
 }
 
