@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use mavlink::dialects::common::{MavCmd, MavMessage, MavModeFlag, MavResult, COMMAND_LONG_DATA};
+use mavlink::dialects::common::{MavCmd, MavMessage, MavModeFlag, MavResult};
 use mavlink::{MavConnection, MavHeader};
 use nalgebra::Vector3;
 use sim::quadrotor::{Quadrotor, QuadrotorParams};
@@ -19,7 +19,7 @@ use sim::world::World;
 use sitl::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
 
 mod common;
-use common::{shared_dir, start, SitlProcess};
+use common::{command_long, shared_dir, start, SitlProcess};
 
 /// Ports 5800 (MAVLink), 14590, 9042 (JSON): no other test's (ArduPilot 1 and 2, PX4 0–9).
 const INSTANCE: u8 = 4;
@@ -156,19 +156,7 @@ impl Gcs {
     }
 
     fn command(&self, command: MavCmd, params: [f32; 7]) {
-        let message = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
-            target_system: 1,
-            target_component: 1,
-            command,
-            confirmation: 0,
-            param1: params[0],
-            param2: params[1],
-            param3: params[2],
-            param4: params[3],
-            param5: params[4],
-            param6: params[5],
-            param7: params[6],
-        });
+        let message = command_long(1, command, params);
         let header = MavHeader {
             system_id: 255,
             component_id: 190,

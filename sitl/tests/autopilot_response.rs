@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use mavlink::dialects::common::{
-    MavCmd, MavFrame, MavMessage, MavResult, PositionTargetTypemask, COMMAND_LONG_DATA,
+    MavCmd, MavFrame, MavMessage, MavResult, PositionTargetTypemask,
     SET_POSITION_TARGET_LOCAL_NED_DATA,
 };
 use mavlink::{MavConnection, MavHeader, MavlinkVersion};
@@ -29,7 +29,7 @@ use sitl::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
 use sitl::hil::px4::{Px4Hil, Px4Vehicle};
 
 mod common;
-use common::{shared_dir, start};
+use common::{command_long, shared_dir, start};
 #[path = "autopilot_response/figures.rs"]
 mod figures;
 use figures::{north_setpoint, print_table, response, Response, Sample, STEP_HOLD_S};
@@ -130,22 +130,6 @@ fn velocity_setpoint(target_system: u8, north_m_s: f64) -> MavMessage {
         type_mask: PositionTargetTypemask::from_bits_truncate(VELOCITY_TYPE_MASK),
         vx: north_m_s as f32,
         ..Default::default()
-    })
-}
-
-fn command_long(target_system: u8, command: MavCmd, params: [f32; 7]) -> MavMessage {
-    MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
-        target_system,
-        target_component: 1,
-        command,
-        confirmation: 0,
-        param1: params[0],
-        param2: params[1],
-        param3: params[2],
-        param4: params[3],
-        param5: params[4],
-        param6: params[5],
-        param7: params[6],
     })
 }
 

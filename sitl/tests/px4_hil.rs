@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use mavlink::dialects::common::{MavCmd, MavMessage, MavResult, COMMAND_LONG_DATA};
+use mavlink::dialects::common::{MavCmd, MavMessage, MavResult};
 use mavlink::{MavHeader, MavlinkVersion};
 use nalgebra::Vector3;
 use sim::quadrotor::{Quadrotor, QuadrotorParams};
@@ -19,7 +19,7 @@ use sim::world::World;
 use sitl::hil::px4::{Px4Hil, Px4Vehicle};
 
 mod common;
-use common::{shared_dir, start, SitlProcess};
+use common::{command_long, shared_dir, start, SitlProcess};
 
 const INSTANCE: u8 = 5;
 
@@ -42,20 +42,8 @@ struct Truth {
 }
 
 fn command(socket: &UdpSocket, peer: std::net::SocketAddr, command: MavCmd, params: [f32; 7]) {
-    let message = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
-        // PX4 instance i is system i + 1.
-        target_system: INSTANCE + 1,
-        target_component: 1,
-        command,
-        confirmation: 0,
-        param1: params[0],
-        param2: params[1],
-        param3: params[2],
-        param4: params[3],
-        param5: params[4],
-        param6: params[5],
-        param7: params[6],
-    });
+    // PX4 instance i is system i + 1.
+    let message = command_long(INSTANCE + 1, command, params);
     let mut bytes = Vec::new();
     let header = MavHeader {
         system_id: 255,

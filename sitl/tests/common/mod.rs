@@ -54,3 +54,26 @@ pub fn start(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> SitlProcess {
             .expect("the start script prints the pid"),
     )
 }
+
+/// A ground station's COMMAND_LONG to the autopilot of `target_system`.
+pub fn command_long(
+    target_system: u8,
+    command: mavlink::dialects::common::MavCmd,
+    params: [f32; 7],
+) -> mavlink::dialects::common::MavMessage {
+    mavlink::dialects::common::MavMessage::COMMAND_LONG(
+        mavlink::dialects::common::COMMAND_LONG_DATA {
+            target_system,
+            target_component: 1,
+            command,
+            confirmation: 0,
+            param1: params[0],
+            param2: params[1],
+            param3: params[2],
+            param4: params[3],
+            param5: params[4],
+            param6: params[5],
+            param7: params[6],
+        },
+    )
+}
