@@ -731,7 +731,7 @@ fn commit_below_lh_then_landed() {
     // Down: it rides with the platform, pressing onto the pad, until the autopilot takes over.
     let v = out.velocity_setpoint_ned_m_s;
     assert!((v.x - 3.0).abs() < 0.2 && v.y.abs() < 0.2, "{v}");
-    assert_eq!(v.z, 0.3);
+    assert_eq!(v.z, 1.0);
 }
 
 /// Committed and descending at the final speed, the vehicle meets the pad 0.1 m above
