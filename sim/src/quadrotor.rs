@@ -262,14 +262,6 @@ impl Quadrotor {
         )
     }
 
-    /// Collective thrust the rotors make now.
-    pub fn thrust_n(&self) -> f64 {
-        self.rotor_speed_fraction
-            .iter()
-            .map(|s| self.params.max_thrust_per_rotor_n * s * s)
-            .sum()
-    }
-
     /// The autopilot's motor commands, 0–1 in the rotors' order; out-of-range commands
     /// saturate, and a NaN (PX4's disarmed output) is a stopped motor.
     pub fn set_motor_commands(&mut self, motor_commands: [f64; 4]) {
