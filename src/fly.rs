@@ -7,7 +7,7 @@ use crate::check::{report_failure, EXIT_INVALID_CONFIG};
 use runtime::config::{load_file, LoadedConfig};
 use runtime::energy::load_mission_model;
 use runtime::link::{LinkConfig, MavlinkLink};
-use runtime::mission::{MissionLog, MissionPlan, MissionRunner, RunnerOptions};
+use runtime::mission::{LandingBy, MissionLog, MissionPlan, MissionRunner, RunnerOptions};
 use runtime::plugins::builtin_registry;
 use runtime::record::{ConfigFile, Recorder, RecordingHeader, RecordingSource};
 use runtime::scheduler::{RealTimeOptions, SchedulerBuilder, TaskStats};
@@ -179,7 +179,10 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
         .transpose()?;
     let mut plan = MissionPlan::for_mission(&loaded.config);
     plan.control = args.control;
-    plan.vision_landing = camera.is_some();
+    if camera.is_none() {
+        // Nothing to see the pad with: the autopilot lands where the vehicle is.
+        plan.landing = LandingBy::Autopilot;
+    }
     plan.meeting_point_ne_m = args.meeting_point_ne_m;
 
     let scheduler = SchedulerBuilder::new(&registry)

@@ -9,7 +9,7 @@ use runtime::camera::{CapturedFrame, MemorySource};
 use runtime::config::load_file;
 use runtime::energy::load_mission_model;
 use runtime::link::{LinkConfig, MavlinkLink};
-use runtime::mission::{MissionPlan, MissionRunner, RunnerOptions};
+use runtime::mission::{LandingBy, MissionPlan, MissionRunner, RunnerOptions};
 use runtime::plugins::builtin_registry;
 use runtime::scheduler::{Pinning, RealTimeOptions, SchedulerBuilder};
 use runtime::topics::CameraFrame;
@@ -62,13 +62,17 @@ fn ardupilot_precision_landing_follows_the_trackers_landing_target() {
     let text = std::fs::read_to_string(root.join("qos.toml")).unwrap();
     let landing_task = text.find("[[task]]\nname = \"landing\"").unwrap();
     let hazard_task = text.find("[[task]]\nname = \"hazard\"").unwrap();
-    let text = format!("{}{}", &text[..landing_task], &text[hazard_task..])
-        .replace("duration_s = 900.0", "duration_s = 4.0")
-        .replace("camera_mount = \"gimbal\"", "camera_mount = \"body\"")
-        .replace(
-            "path = \"profiles/",
-            &format!("path = \"{}/profiles/", root.display()),
-        );
+    let text = format!(
+        "{}{}\n[link]\nlanding_target = true\n",
+        &text[..landing_task],
+        &text[hazard_task..]
+    )
+    .replace("duration_s = 900.0", "duration_s = 4.0")
+    .replace("camera_mount = \"gimbal\"", "camera_mount = \"body\"")
+    .replace(
+        "path = \"profiles/",
+        &format!("path = \"{}/profiles/", root.display()),
+    );
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("precland.toml");
     std::fs::write(&path, text).unwrap();
@@ -87,8 +91,9 @@ fn ardupilot_precision_landing_follows_the_trackers_landing_target() {
     let link = MavlinkLink::connect(&address, LinkConfig::default()).unwrap();
     let mut plan = MissionPlan::for_mission(&loaded.config);
     plan.control = true;
-    // The autopilot lands (its precision landing), qosrt feeds it the target.
-    plan.vision_landing = false;
+    // No landing task and LANDING_TARGET on: the autopilot lands by its precision landing,
+    // qosrt feeds it the target.
+    assert_eq!(plan.landing, LandingBy::AutopilotPrecision);
     let frames = MemorySource::new();
     let mut runner = MissionRunner::new(
         model,

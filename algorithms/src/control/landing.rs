@@ -102,6 +102,17 @@ pub struct LandingConfig {
     pub descent_speed_m_s: f64,
     /// Descent speed after the commit.
     pub final_descent_speed_m_s: f64,
+    /// The flare: in the last of the descent the commanded rate falls at this deceleration
+    /// (a constant-deceleration profile, `√(v_td² + 2·a·h)`) to `touchdown_speed_m_s` at the
+    /// pad, so the commit can be quick where the wind changes fastest and the contact still
+    /// soft (PX4's MPC_LAND_SPEED is 0.7 m/s, ArduPilot's LAND_SPEED 0.5). 0 (the default):
+    /// no flare, the seed's constant final descent.
+    pub flare_deceleration_m_s2: f64,
+    pub touchdown_speed_m_s: f64,
+    /// The profile is read this far ahead at the measured descent rate: the autopilot's
+    /// vertical velocity loop lags a falling command (PX4's MPC_Z_VEL_P_ACC = 4: about 0.25 s),
+    /// and a profile followed late meets the pad faster than it asks.
+    pub flare_lead_s: f64,
     /// Limit on climb/descent speed when holding a height.
     pub max_height_hold_speed_m_s: f64,
     /// Vertical speed per metre of height error when holding a height.
@@ -185,6 +196,9 @@ impl Default for LandingConfig {
             commit_dwell_s: 0.3,
             descent_speed_m_s: 0.7,
             final_descent_speed_m_s: 1.0,
+            flare_deceleration_m_s2: 0.0,
+            touchdown_speed_m_s: 0.7,
+            flare_lead_s: 0.25,
             max_height_hold_speed_m_s: 1.0,
             height_gain_per_s: 1.0,
             lost_timeout_s: 1.0,
@@ -228,6 +242,7 @@ impl LandingConfig {
             ),
             ("descent_speed_m_s", self.descent_speed_m_s),
             ("final_descent_speed_m_s", self.final_descent_speed_m_s),
+            ("touchdown_speed_m_s", self.touchdown_speed_m_s),
             ("max_height_hold_speed_m_s", self.max_height_hold_speed_m_s),
             ("height_gain_per_s", self.height_gain_per_s),
             ("lost_timeout_s", self.lost_timeout_s),
@@ -270,6 +285,8 @@ impl LandingConfig {
                 self.max_touchdown_correction_m_s,
             ),
             ("gust_feed_forward_s", self.gust_feed_forward_s),
+            ("flare_deceleration_m_s2", self.flare_deceleration_m_s2),
+            ("flare_lead_s", self.flare_lead_s),
         ] {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(config_error(name, value, "must be a finite number ≥ 0"));
@@ -308,6 +325,19 @@ impl LandingConfig {
             mpc.validate()?;
         }
         Ok(())
+    }
+
+    /// The descent rate commanded after the commit at a height above the pad, descending at
+    /// `descent_rate_m_s`: `final_descent_speed_m_s`, or less in the flare.
+    pub fn final_descent_rate_m_s(&self, height_m: f64, descent_rate_m_s: f64) -> f64 {
+        if self.flare_deceleration_m_s2 <= 0.0 {
+            return self.final_descent_speed_m_s;
+        }
+        let ahead_m = (height_m - descent_rate_m_s.max(0.0) * self.flare_lead_s).max(0.0);
+        let touchdown_m_s = self.touchdown_speed_m_s.min(self.final_descent_speed_m_s);
+        (touchdown_m_s.powi(2) + 2.0 * self.flare_deceleration_m_s2 * ahead_m)
+            .sqrt()
+            .min(self.final_descent_speed_m_s)
     }
 
     /// The centred radius at a height: `centred_radius_at_final_height_m` at or below LH,

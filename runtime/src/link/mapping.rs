@@ -20,7 +20,7 @@
 //! Main modes: MANUAL 1, ALTCTL 2, POSCTL 3, AUTO 4, ACRO 5, OFFBOARD 6, STABILIZED 7.
 //! AUTO sub modes: READY 1, TAKEOFF 2, LOITER 3, MISSION 4, RTL 5, LAND 6, FOLLOW_TARGET 8,
 //! PRECLAND 9. So OFFBOARD = 0x0006_0000, POSCTL = 0x0003_0000, AUTO.TAKEOFF = 0x0204_0000,
-//! AUTO.LOITER = 0x0304_0000, AUTO.LAND = 0x0604_0000.
+//! AUTO.LOITER = 0x0304_0000, AUTO.LAND = 0x0604_0000, AUTO.PRECLAND = 0x0904_0000.
 //! ArduPilot copter modes (`ArduCopter/mode.h`) are plain numbers: LOITER 5, GUIDED 4, LAND 9.
 
 use crate::telemetry::BatteryTelemetry;
@@ -46,6 +46,7 @@ pub const PX4_MAIN_MODE_OFFBOARD: u8 = 6;
 pub const PX4_AUTO_SUB_MODE_TAKEOFF: u8 = 2;
 pub const PX4_AUTO_SUB_MODE_LOITER: u8 = 3;
 pub const PX4_AUTO_SUB_MODE_LAND: u8 = 6;
+pub const PX4_AUTO_SUB_MODE_PRECLAND: u8 = 9;
 /// ArduCopter flight mode numbers.
 pub const ARDUCOPTER_MODE_GUIDED: u32 = 4;
 pub const ARDUCOPTER_MODE_LOITER: u32 = 5;
@@ -90,7 +91,7 @@ pub enum AutopilotKind {
 pub enum AutopilotMode {
     /// PX4 OFFBOARD or ArduPilot GUIDED: the companion's setpoints fly the vehicle.
     Offboard,
-    /// PX4 AUTO.LAND or ArduPilot LAND.
+    /// PX4 AUTO.LAND or AUTO.PRECLAND, or ArduPilot LAND (precise when PLND_ENABLED).
     Land,
     /// PX4 AUTO.TAKEOFF.
     Takeoff,
@@ -148,7 +149,9 @@ pub fn decode_custom_mode(kind: AutopilotKind, custom_mode: u32) -> AutopilotMod
         AutopilotKind::Px4 => match px4_mode_parts(custom_mode) {
             (PX4_MAIN_MODE_OFFBOARD, _) => AutopilotMode::Offboard,
             (PX4_MAIN_MODE_POSCTL, _) => AutopilotMode::Position,
-            (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LAND) => AutopilotMode::Land,
+            (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LAND | PX4_AUTO_SUB_MODE_PRECLAND) => {
+                AutopilotMode::Land
+            }
             (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_TAKEOFF) => AutopilotMode::Takeoff,
             (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LOITER) => AutopilotMode::Hold,
             _ => AutopilotMode::Other { custom_mode },
@@ -219,8 +222,8 @@ fn remaining_from_percent(remaining_percent: i8) -> Option<f64> {
 
 /// Height above the surface under the vehicle from a downward (PITCH_270) rangefinder, tilt
 /// corrected (the beam runs along the body's down axis); `None` for other orientations and
-/// readings outside the sensor's own [min, max] range (PX4 reports out-of-range as max+1 or
-/// UINT16_MAX).
+/// readings outside the sensor's own [min, max) range (out of range arrives as UINT16_MAX,
+/// max+1, or, forwarded by PX4, max itself).
 pub fn rangefinder_height_m(sensor: &DISTANCE_SENSOR_DATA, attitude: &Attitude) -> Option<f64> {
     if sensor.orientation != MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270 {
         return None;
@@ -228,7 +231,7 @@ pub fn rangefinder_height_m(sensor: &DISTANCE_SENSOR_DATA, attitude: &Attitude) 
     let distance_cm = sensor.current_distance;
     if distance_cm == UINT16_UNKNOWN
         || distance_cm < sensor.min_distance
-        || distance_cm > sensor.max_distance
+        || distance_cm >= sensor.max_distance
     {
         return None;
     }
@@ -517,6 +520,9 @@ pub enum VehicleCommand {
         altitude_m: f64,
     },
     Land,
+    /// The autopilot's own precision landing on the LANDING_TARGETs it is sent: PX4
+    /// AUTO.PRECLAND (landing_target_estimator running), ArduPilot LAND (PLND_ENABLED = 1).
+    PrecisionLand,
     /// PX4 OFFBOARD (ArduPilot GUIDED).
     SetOffboard,
     /// PX4 AUTO.LOITER (ArduPilot LOITER).
@@ -556,7 +562,9 @@ impl VehicleCommand {
             Self::Arm | Self::Disarm => Some(MavCmd::MAV_CMD_COMPONENT_ARM_DISARM as u32),
             Self::Takeoff { .. } => Some(MavCmd::MAV_CMD_NAV_TAKEOFF as u32),
             Self::Land => Some(MavCmd::MAV_CMD_NAV_LAND as u32),
-            Self::SetOffboard | Self::SetHold => Some(MavCmd::MAV_CMD_DO_SET_MODE as u32),
+            Self::SetOffboard | Self::SetHold | Self::PrecisionLand => {
+                Some(MavCmd::MAV_CMD_DO_SET_MODE as u32)
+            }
             Self::SetMessageInterval { .. } => Some(MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL as u32),
             Self::VelocityNed { .. } | Self::LandingTarget { .. } => None,
         }
@@ -647,6 +655,11 @@ pub fn command_message(
         VehicleCommand::Land => long(
             MavCmd::MAV_CMD_NAV_LAND,
             [0.0, 0.0, 0.0, f32::NAN, f32::NAN, f32::NAN, f32::NAN],
+        ),
+        VehicleCommand::PrecisionLand => set_mode(
+            PX4_MAIN_MODE_AUTO,
+            PX4_AUTO_SUB_MODE_PRECLAND,
+            ARDUCOPTER_MODE_LAND,
         ),
         VehicleCommand::SetOffboard => set_mode(PX4_MAIN_MODE_OFFBOARD, 0, ARDUCOPTER_MODE_GUIDED),
         VehicleCommand::SetMessageInterval {

@@ -9,5 +9,6 @@ pub mod sequencer;
 pub use report::{GovernorDecision, MissionLog};
 pub use runner::{describe_mission, MissionRunner, RunnerError, RunnerOptions, StepReport};
 pub use sequencer::{
-    AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, SequencerInput,
+    AutopilotView, LandingBy, MissionEvent, MissionPlan, MissionSequencer, MissionStatus,
+    SequencerInput,
 };

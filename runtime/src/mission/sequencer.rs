@@ -98,9 +98,9 @@ pub struct MissionPlan {
     pub touchdown_confirm_s: f64,
     /// Command the vehicle (`--control`); without it the sequencer only follows the flight.
     pub control: bool,
-    /// A landing task steers the last phase; without one (no camera) the last phase lands
-    /// where the vehicle is with the autopilot's land mode.
-    pub vision_landing: bool,
+    /// Who lands the vehicle in the last phase.
+    #[serde(default)]
+    pub landing: LandingBy,
     /// Observe mode only: hold this one phase from the first time the autopilot is heard (a
     /// dry run of one phase).
     pub only_phase: Option<usize>,
@@ -119,6 +119,17 @@ impl MissionPlan {
         plan.cruise_altitude_m = config
             .plugin_number("landing_guidance", "initial_altitude_m")
             .unwrap_or(algorithms::control::landing::LandingConfig::default().initial_height_m);
+        let last_phase = phases.last().map(|p| p.name.as_str());
+        let steered = config.tasks.iter().any(|task| {
+            task.plugin == "landing_guidance"
+                && last_phase.is_some_and(|last| task.phases.iter().any(|p| p == last))
+        });
+        let landing_target = config.link.as_ref().is_some_and(|l| l.landing_target);
+        plan.landing = match (steered, landing_target) {
+            (true, _) => LandingBy::Vision,
+            (false, true) => LandingBy::AutopilotPrecision,
+            (false, false) => LandingBy::Autopilot,
+        };
         plan
     }
 
@@ -137,10 +148,24 @@ impl MissionPlan {
             offboard_preamble_s: 0.5,
             touchdown_confirm_s: 5.0,
             control: true,
-            vision_landing: true,
+            landing: LandingBy::Vision,
             only_phase: None,
         }
     }
+}
+
+/// Who lands the vehicle in the mission's last phase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LandingBy {
+    /// The landing task steers it onto the pad with offboard setpoints.
+    #[default]
+    Vision,
+    /// The autopilot's land mode, where the vehicle is (no camera, or no landing task).
+    Autopilot,
+    /// The autopilot's own precision landing on the tracker's LANDING_TARGETs (`[link]
+    /// landing_target = true` and no landing task in the last phase).
+    AutopilotPrecision,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -161,6 +186,8 @@ enum Stage {
     Flying,
     Landing {
         sent_s: f64,
+        /// By the autopilot's precision landing rather than its plain land mode.
+        precise: bool,
     },
     /// Observe mode: following the flight, never commanding.
     Observing,
@@ -262,6 +289,7 @@ impl MissionSequencer {
         if self.status().holds_control {
             self.stage = Stage::Landing {
                 sent_s: f64::NEG_INFINITY,
+                precise: false,
             };
             let event = MissionEvent::LandingHere {
                 reason: reason.to_string(),
@@ -430,12 +458,23 @@ impl MissionSequencer {
                     };
                 }
             }
-            Stage::Flying if !self.plan.vision_landing && self.phase == Some(last_phase) => {
+            Stage::Flying
+                if self.plan.landing != LandingBy::Vision && self.phase == Some(last_phase) =>
+            {
+                let precise = self.plan.landing == LandingBy::AutopilotPrecision;
+                let reason = if precise {
+                    "the autopilot's precision landing on the tracker's LANDING_TARGET"
+                } else {
+                    "no landing task: the autopilot lands where the vehicle is"
+                };
                 events.push(MissionEvent::LandingHere {
-                    reason: "no camera: the autopilot lands where the vehicle is".into(),
+                    reason: reason.into(),
                 });
-                commands.push(VehicleCommand::Land);
-                self.stage = Stage::Landing { sent_s: now_s };
+                commands.push(land_command(precise));
+                self.stage = Stage::Landing {
+                    sent_s: now_s,
+                    precise,
+                };
             }
             Stage::Flying => {
                 // The landing task's touchdown rides on with the pad (its setpoint holds the
@@ -458,20 +497,26 @@ impl MissionSequencer {
                 if self.phase == Some(last_phase) && touchdown {
                     events.push(MissionEvent::Touchdown);
                     commands.push(VehicleCommand::Land);
-                    self.stage = Stage::Landing { sent_s: now_s };
+                    self.stage = Stage::Landing {
+                        sent_s: now_s,
+                        precise: false,
+                    };
                 } else {
                     commands.push(self.flying_setpoint(&autopilot, input, now_s, &mut events));
                 }
             }
-            Stage::Landing { sent_s } => {
+            Stage::Landing { sent_s, precise } => {
                 if !autopilot.armed {
                     events.push(MissionEvent::Disarmed);
                     self.stage = Stage::Done;
                 } else if autopilot.mode != AutopilotMode::Land
                     && now_s - sent_s >= self.plan.command_retry_s
                 {
-                    commands.push(VehicleCommand::Land);
-                    self.stage = Stage::Landing { sent_s: now_s };
+                    commands.push(land_command(precise));
+                    self.stage = Stage::Landing {
+                        sent_s: now_s,
+                        precise,
+                    };
                 }
             }
             Stage::Done => {}
@@ -603,6 +648,15 @@ impl MissionSequencer {
         } else {
             velocity
         }
+    }
+}
+
+/// The autopilot's land command: its precision landing, or its plain land mode.
+fn land_command(precise: bool) -> VehicleCommand {
+    if precise {
+        VehicleCommand::PrecisionLand
+    } else {
+        VehicleCommand::Land
     }
 }
 

@@ -51,6 +51,14 @@ struct Params {
     /// Descent speed after the commit.
     #[serde(default = "default_final_descent_speed")]
     final_descent_speed_m_s: f64,
+    /// The flare: the descent slows at this deceleration to `touchdown_speed_m_s` at the pad,
+    /// reading the profile `flare_lead_s` ahead (the autopilot's vertical lag); 0: no flare.
+    #[serde(default)]
+    flare_deceleration_m_s2: f64,
+    #[serde(default = "default_touchdown_speed")]
+    touchdown_speed_m_s: f64,
+    #[serde(default = "default_flare_lead")]
+    flare_lead_s: f64,
     /// Wind feed-forward: the low-pass time constant of the autopilot's estimated velocity
     /// shortfall, added to the commands (0: off).
     #[serde(default)]
@@ -184,6 +192,12 @@ fn default_keep_in_view_margin() -> f64 {
 fn default_final_descent_speed() -> f64 {
     LandingConfig::default().final_descent_speed_m_s
 }
+fn default_touchdown_speed() -> f64 {
+    LandingConfig::default().touchdown_speed_m_s
+}
+fn default_flare_lead() -> f64 {
+    LandingConfig::default().flare_lead_s
+}
 fn default_initial() -> f64 {
     7.5
 }
@@ -241,6 +255,9 @@ impl GuidanceTask {
             initial_height_m: params.initial_altitude_m,
             final_landing_height_m: params.final_altitude_m,
             final_descent_speed_m_s: params.final_descent_speed_m_s,
+            flare_deceleration_m_s2: params.flare_deceleration_m_s2,
+            touchdown_speed_m_s: params.touchdown_speed_m_s,
+            flare_lead_s: params.flare_lead_s,
             wind_compensation_tau_s: params.wind_compensation_tau_s,
             wind_shear_roughness_m: params.wind_shear_roughness_m,
             wind_shear_lead_s: params.wind_shear_lead_s,
@@ -445,7 +462,8 @@ mod tests {
              wind_shear_roughness_m = 0.05\nwind_shear_lead_s = 0.4\ngain_switch_height_m = 1.5\n\
              touchdown_correction_height_m = 0.25\nmax_touchdown_correction_m_s = 0.2\n\
              touchdown_correction_lead_s = 0.4\n\
-             max_final_correction_m_s = 1.2\ngust_feed_forward_s = 0.6\ngust_baseline_tau_s = 2.0",
+             max_final_correction_m_s = 1.2\ngust_feed_forward_s = 0.6\ngust_baseline_tau_s = 2.0\n\
+             flare_deceleration_m_s2 = 2.5\ntouchdown_speed_m_s = 0.6\nflare_lead_s = 0.3",
         )
         .unwrap();
         let config = windy.controller.config();
@@ -463,6 +481,9 @@ mod tests {
         assert_eq!(config.max_final_correction_m_s, 1.2);
         assert_eq!(config.gust_feed_forward_s, 0.6);
         assert_eq!(config.gust_baseline_tau_s, 2.0);
+        assert_eq!(config.flare_deceleration_m_s2, 2.5);
+        assert_eq!(config.touchdown_speed_m_s, 0.6);
+        assert_eq!(config.flare_lead_s, 0.3);
         // Unset, they are the seed's law (Table 2's close-in gains, no feed-forward).
         let plain = task("").unwrap();
         let plain = plain.controller.config();
@@ -475,6 +496,7 @@ mod tests {
         assert_eq!(plain.wind_shear_roughness_m, 0.0);
         assert_eq!(plain.gust_feed_forward_s, 0.0);
         assert_eq!(plain.touchdown_correction_lead_s, 0.0);
+        assert_eq!(plain.flare_deceleration_m_s2, 0.0);
         assert_eq!(plain.pid.gains.switch_height_m, 4.0);
         for (params, name) in [
             ("wind_compensation_tau_s = -1.0", "wind_compensation_tau_s"),
@@ -499,6 +521,9 @@ mod tests {
             ),
             ("gust_feed_forward_s = -0.5", "gust_feed_forward_s"),
             ("gust_baseline_tau_s = 0.0", "gust_baseline_tau_s"),
+            ("flare_deceleration_m_s2 = -2.0", "flare_deceleration_m_s2"),
+            ("touchdown_speed_m_s = 0.0", "touchdown_speed_m_s"),
+            ("flare_lead_s = inf", "flare_lead_s"),
         ] {
             let Err(TaskError::Params(why)) = task(params) else {
                 panic!("{params} must be refused");

@@ -238,7 +238,7 @@ pub fn simulate(
     let frames = MemorySource::new();
     let mut events: Vec<(f64, String)> = Vec::new();
     let runner_options = RunnerOptions {
-        landing_target: false,
+        landing_target: model.config.link.as_ref().is_some_and(|l| l.landing_target),
         fixed_levels: options.fixed_levels.clone(),
     };
     let mut runner = MissionRunner::new(

@@ -9,8 +9,9 @@ use crate::control::wind_shear::descent_feed_forward_ne_m_s;
 
 /// Low-pass time constant on the aerodynamic acceleration (the link differentiates velocities).
 const AERODYNAMIC_ACCEL_TAU_S: f64 = 0.2;
-/// Low-pass time constant on the descent rate, and the fraction of the final descent speed
-/// below which a committed descent near the pad counts as stopped by it.
+/// Low-pass time constant on the descent rate, and the
+/// fraction of the commanded descent rate below which a committed descent near the pad counts
+/// as stopped by it.
 const DESCENT_RATE_TAU_S: f64 = 0.05;
 const STALLED_DESCENT_FRACTION: f64 = 0.3;
 
@@ -283,11 +284,17 @@ impl Machine {
             }
             LandingMode::FinalLanding => {
                 let h = tracking_velocity(self)?;
-                (h, c.final_descent_speed_m_s, true)
+                let down_m_s = c.final_descent_rate_m_s(height_m, self.descent_rate_m_s);
+                (h, down_m_s, true)
             }
             // Down, or all but: ride with the pad, pressing onto it, until the autopilot takes
             // over.
-            LandingMode::Landed => (input.platform_velocity_ne_m_s, LANDED_PRESS_DOWN_M_S, true),
+            // Never faster than the flare meets the pad.
+            LandingMode::Landed => (
+                input.platform_velocity_ne_m_s,
+                LANDED_PRESS_DOWN_M_S.min(c.final_descent_rate_m_s(0.0, 0.0)),
+                true,
+            ),
         };
         // Descending into the weaker wind near the ground: lean less before the velocity loop
         // finds out.
@@ -389,7 +396,8 @@ impl Machine {
         // the pad (the rate settles within a few steps of the commit's faster descent).
         let stalled = self.mode == LandingMode::FinalLanding
             && height_m <= c.touchdown_correction_height_m
-            && self.descent_rate_m_s < STALLED_DESCENT_FRACTION * c.final_descent_speed_m_s;
+            && self.descent_rate_m_s
+                < STALLED_DESCENT_FRACTION * c.final_descent_rate_m_s(height_m, 0.0);
         if self.mode != LandingMode::Landed
             && (input.touchdown_detected
                 || stalled

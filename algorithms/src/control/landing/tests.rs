@@ -760,6 +760,92 @@ fn a_descent_stopped_by_the_pad_is_the_touchdown() {
     }
 }
 
+/// The reference mission's descent after the commit, flown by an autopilot whose vertical
+/// velocity follows the command with a 0.25 s first-order lag, from LH to the pad; returns the
+/// vertical speed at contact and the time taken.
+fn fly_the_final_descent(config: LandingConfig) -> (f64, f64) {
+    const STEP_S: f64 = 0.01;
+    const LAG_S: f64 = 0.25;
+    let (mut c, mut t_s) = descending_with(config);
+    let lh_m = config.final_landing_height_m;
+    assert_eq!(
+        run(&mut c, &mut t_s, 1.0, Some(0.0), lh_m).mode,
+        LandingMode::FinalLanding
+    );
+    let (mut height_m, mut down_m_s, start_s) = (lh_m, 0.0, t_s);
+    while height_m > 0.0 {
+        t_s += STEP_S;
+        let out = c
+            .step(&input(t_s, fix_at(0.0, 0.0, height_m), height_m))
+            .unwrap();
+        let command_m_s = out.velocity_setpoint_ned_m_s.z;
+        down_m_s += (command_m_s - down_m_s) * STEP_S / LAG_S;
+        height_m -= down_m_s * STEP_S;
+        assert!(t_s - start_s < 10.0, "no contact: {out:?} at {height_m} m");
+    }
+    (down_m_s, t_s - start_s)
+}
+
+/// The flare brings a quick committed descent down softly: with it the lagging autopilot meets
+/// the pad at no more than the touchdown speed plus a little of its lag, without it at nearly
+/// the full 2 m/s; the flare costs well under a second.
+#[test]
+fn the_flare_meets_the_pad_softly() {
+    let flared = LandingConfig {
+        flare_deceleration_m_s2: 2.5,
+        touchdown_speed_m_s: 0.6,
+        flare_lead_s: 0.25,
+        ..close_in_config()
+    };
+    let (plain_m_s, plain_s) = fly_the_final_descent(close_in_config());
+    let (flared_m_s, flared_s) = fly_the_final_descent(flared);
+    assert!(
+        plain_m_s > 1.8,
+        "{plain_m_s} m/s at contact without the flare"
+    );
+    assert!(
+        flared_m_s > 0.5 && flared_m_s < 0.8,
+        "{flared_m_s} m/s at contact with the flare"
+    );
+    assert!(
+        flared_s > plain_s && flared_s < plain_s + 0.8,
+        "{flared_s} s against {plain_s} s"
+    );
+    // Without its lead, the same profile is followed late and meets the pad faster.
+    let late = LandingConfig {
+        flare_lead_s: 0.0,
+        ..flared
+    };
+    let (late_m_s, _) = fly_the_final_descent(late);
+    assert!(
+        late_m_s > flared_m_s + 0.2,
+        "{late_m_s} against {flared_m_s}"
+    );
+}
+
+/// The profile itself: the final speed high up, the touchdown speed at the pad, and in
+/// between the speed a constant deceleration leaves (v² = v_td² + 2·a·h).
+#[test]
+fn the_flare_profile_is_a_constant_deceleration() {
+    let config = LandingConfig {
+        final_descent_speed_m_s: 2.0,
+        flare_deceleration_m_s2: 2.0,
+        touchdown_speed_m_s: 0.5,
+        flare_lead_s: 0.2,
+        ..LandingConfig::default()
+    };
+    assert_eq!(config.final_descent_rate_m_s(1.5, 0.0), 2.0);
+    assert_eq!(config.final_descent_rate_m_s(0.0, 1.0), 0.5);
+    // 0.3 m up, descending at 1 m/s: read 0.2 m further down, at 0.1 m.
+    let expected_m_s = (0.25_f64 + 2.0 * 2.0 * 0.1).sqrt();
+    assert!((config.final_descent_rate_m_s(0.3, 1.0) - expected_m_s).abs() < 1e-12);
+    let off = LandingConfig {
+        flare_deceleration_m_s2: 0.0,
+        ..config
+    };
+    assert_eq!(off.final_descent_rate_m_s(0.1, 1.0), 2.0);
+}
+
 #[test]
 fn autopilot_touchdown_means_landed() {
     let (mut c, mut t_s) = descending();

@@ -381,15 +381,28 @@ fn vehicle_state_from_attitude_position_rangefinder_and_landed() {
         1.0,
     );
     assert!((height_m(&state, 1.0) - expected).abs() < 1e-12);
-    // Out of range clears the reading, not the level.
-    state.apply(
-        &MavMessage::DISTANCE_SENSOR(distance(
-            u16::MAX,
-            MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270,
-        )),
-        1.0,
-    );
-    assert!((height_m(&state, 1.0) - expected).abs() < 1e-12);
+    // Out of range clears the reading, not the level: UINT16_MAX, or the maximum itself,
+    // which is how PX4 forwards "no return" (a vehicle on the ground below the minimum
+    // reads 15 m there, and taken as a reading it sank the ground level 15 m).
+    for no_return_cm in [u16::MAX, 4_000] {
+        state.apply(
+            &MavMessage::DISTANCE_SENSOR(distance(
+                no_return_cm,
+                MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270,
+            )),
+            1.0,
+        );
+        assert!((height_m(&state, 1.0) - expected).abs() < 1e-12);
+    }
+    let reading = |cm| {
+        rangefinder_height_m(
+            &distance(cm, MavSensorOrientation::MAV_SENSOR_ROTATION_PITCH_270),
+            &Attitude::new(0.0, 0.0, 0.0),
+        )
+    };
+    assert_eq!(reading(3_999), Some(39.99));
+    assert_eq!(reading(10), Some(0.1));
+    assert_eq!((reading(4_000), reading(9)), (None, None));
     let landed = |landed_state| {
         MavMessage::EXTENDED_SYS_STATE(EXTENDED_SYS_STATE_DATA {
             vtol_state: mavlink::dialects::common::MavVtolState::MAV_VTOL_STATE_MC,

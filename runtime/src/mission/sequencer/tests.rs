@@ -411,7 +411,7 @@ fn a_stop_lands_where_the_vehicle_is_and_waits_for_disarm() {
 #[test]
 fn without_a_camera_the_last_phase_lands_with_the_autopilot() {
     let mut sequencer = MissionSequencer::new(MissionPlan {
-        vision_landing: false,
+        landing: LandingBy::Autopilot,
         ..plan()
     });
     let mut autopilot = Obedient::new();
