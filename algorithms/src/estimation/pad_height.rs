@@ -3,45 +3,49 @@
 //! A rangefinder under a vehicle following a tractor sees the pad's top or, when its beam
 //! (along the leaning body's down axis) misses the 1 m pad, the field a pad-height lower: taken
 //! as it is, the height jumps by that much, and a landing holding a height climbs and sinks
-//! with every jump. The surfaces are told apart by their altitude (the autopilot's altitude
-//! minus the reading): the ground is the lowest level the rangefinder has seen (from the
-//! take-off point on) and tracks slowly; a surface more than `gate_m` above it is the pad, whose height
-//! above the ground is learned from those readings. The height above the pad is then the
-//! vehicle's altitude above the ground level less the pad's height, smooth whichever surface
-//! the beam hits, and right while the beam sees only the ground (the vehicle upwind of the pad
-//! in strong wind). The field is taken as level where the vehicle flies (a farm field).
+//! with every jump. The surfaces are told apart by the steps between consecutive readings:
+//! the surface's altitude (the autopilot's altitude less the reading) rises by the pad's
+//! height where the beam climbs onto the pad and falls by it where it slips off, while the
+//! autopilot's altitude moves by millimetres between two readings. Each step measures the
+//! pad's height above the ground; between steps the beam stays on the surface it stepped
+//! onto. The height above the pad is then the latest reading, less the pad's height when
+//! that reading hit the ground, moved by the autopilot's altitude change since.
+//!
+//! No absolute level is kept: the autopilot's altitude (barometric, drifting half a metre in
+//! a minute of a real PX4's flight) never has to agree with itself across the flight, only
+//! across one step. The field is taken as level where the vehicle flies (a farm field).
 
 use thiserror::Error;
 
 /// The estimator's tuning.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PadHeightConfig {
-    /// A surface this much above the ground level is the pad. Below the pad's height and above
-    /// the rangefinder's noise and the field's bumps.
+    /// A step of the surface's altitude larger than this between two readings is the beam
+    /// changing surface. Below the pad's height and above the rangefinder's noise, the
+    /// field's bumps and the altitude's change between readings.
     pub gate_m: f64,
-    /// Low-pass time constant of the ground level and the pad's height: longer than the
-    /// rangefinder's noise, shorter than the drift of the autopilot's altitude (tens of s).
-    pub level_tau_s: f64,
-    /// While the latest reading hit the pad and is younger than this, the height is that
-    /// reading (moved by the altitude change since): exact to its noise on the pad, where a
-    /// low-passed level could be a decimetre off and end a descent in the air.
-    pub reading_fresh_s: f64,
+    /// How far one step's measurement moves the learned pad height (0–1]: the steps' noise
+    /// is the rangefinder's, twice.
+    pub step_weight: f64,
 }
 
 impl Default for PadHeightConfig {
     fn default() -> Self {
         Self {
             gate_m: 0.4,
-            level_tau_s: 1.0,
-            reading_fresh_s: 0.5,
+            step_weight: 0.25,
         }
     }
 }
 
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum PadHeightError {
-    #[error("pad height config: {name} = {value} must be a finite number > 0")]
-    Config { name: &'static str, value: f64 },
+    #[error("pad height config: {name} = {value} is invalid: {why}")]
+    Config {
+        name: &'static str,
+        value: f64,
+        why: &'static str,
+    },
 }
 
 /// Which surface a reading was taken to come from.
@@ -51,41 +55,55 @@ pub enum Surface {
     Pad,
 }
 
+/// One reading, as folded in.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Reading {
+    height_m: f64,
+    altitude_up_m: f64,
+    surface: Surface,
+}
+
+impl Reading {
+    /// The altitude of the surface it hit, in the autopilot's frame.
+    fn surface_up_m(&self) -> f64 {
+        self.altitude_up_m - self.height_m
+    }
+}
+
 /// See the module docs.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct PadHeightEstimator {
     config: PadHeightConfig,
-    /// The ground's altitude (up, in the autopilot's frame), metres.
-    ground_up_m: Option<f64>,
-    /// The pad's top above the ground, once a reading has hit it.
+    latest: Option<Reading>,
+    /// The pad's top above the ground, once a step has measured it.
     pad_above_ground_m: Option<f64>,
-    last_time_s: Option<f64>,
-    /// The latest reading that hit the pad: the pad's altitude then, and when.
-    latest_pad_up_m: Option<(f64, f64)>,
 }
 
 impl PadHeightEstimator {
     pub fn new(config: PadHeightConfig) -> Result<Self, PadHeightError> {
-        for (name, value) in [
-            ("gate_m", config.gate_m),
-            ("level_tau_s", config.level_tau_s),
-            ("reading_fresh_s", config.reading_fresh_s),
-        ] {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(PadHeightError::Config { name, value });
-            }
+        if !(config.gate_m.is_finite() && config.gate_m > 0.0) {
+            return Err(PadHeightError::Config {
+                name: "gate_m",
+                value: config.gate_m,
+                why: "must be a finite number > 0",
+            });
+        }
+        if !(config.step_weight > 0.0 && config.step_weight <= 1.0) {
+            return Err(PadHeightError::Config {
+                name: "step_weight",
+                value: config.step_weight,
+                why: "must be in (0, 1]",
+            });
         }
         Ok(Self {
             config,
-            ground_up_m: None,
+            latest: None,
             pad_above_ground_m: None,
-            last_time_s: None,
-            latest_pad_up_m: None,
         })
     }
 
     /// Folds in a tilt-corrected rangefinder height taken at `altitude_up_m` (the autopilot's,
-    /// up positive). Non-finite input is ignored (`None`).
+    /// up positive), and says which surface it hit. Non-finite input is ignored (`None`).
     pub fn update(
         &mut self,
         time_s: f64,
@@ -98,54 +116,54 @@ impl PadHeightEstimator {
         {
             return None;
         }
-        let dt_s = self
-            .last_time_s
-            .map_or(0.0, |previous_s| (time_s - previous_s).max(0.0));
-        self.last_time_s = Some(time_s);
-        let alpha = dt_s / (self.config.level_tau_s + dt_s);
-        let surface_up_m = altitude_up_m - rangefinder_height_m;
-        let Some(ground_up_m) = self.ground_up_m.as_mut() else {
-            self.ground_up_m = Some(surface_up_m);
-            return Some(Surface::Ground);
+        let mut reading = Reading {
+            height_m: rangefinder_height_m,
+            altitude_up_m,
+            surface: Surface::Ground,
         };
-        let above_ground_m = surface_up_m - *ground_up_m;
-        let on_pad = above_ground_m > self.config.gate_m;
-        self.latest_pad_up_m = on_pad.then_some((surface_up_m, time_s));
-        if on_pad {
-            let pad = self.pad_above_ground_m.get_or_insert(above_ground_m);
-            // A pad level far from the learned one is a new pad (or another surface): start
-            // there rather than creep.
-            if (above_ground_m - *pad).abs() > self.config.gate_m {
-                *pad = above_ground_m;
+        // The first surface is taken for the ground (a take-off from the field) until a step
+        // says otherwise.
+        if let Some(previous) = self.latest {
+            let step_m = reading.surface_up_m() - previous.surface_up_m();
+            reading.surface = if step_m.abs() <= self.config.gate_m {
+                previous.surface
+            } else if step_m > 0.0 {
+                // Up onto the pad: a measurement, unless it was on the pad already (something
+                // on it, or a higher part of the tractor).
+                if previous.surface == Surface::Ground {
+                    self.learn_pad_height(step_m);
+                }
+                Surface::Pad
             } else {
-                *pad += alpha * (above_ground_m - *pad);
-            }
-            Some(Surface::Pad)
-        } else if above_ground_m < -self.config.gate_m {
-            // Lower than the ground: the first surface was not the ground (a take-off from the
-            // pad); this is.
-            *ground_up_m = surface_up_m;
-            Some(Surface::Ground)
-        } else {
-            *ground_up_m += alpha * above_ground_m;
-            Some(Surface::Ground)
+                // Down onto the ground, from the pad or from what was taken for the ground (a
+                // take-off from the pad): either way the step is the pad's height.
+                self.learn_pad_height(-step_m);
+                Surface::Ground
+            };
         }
+        self.latest = Some(reading);
+        Some(reading.surface)
     }
 
-    /// The height above the pad at `altitude_up_m` and `time_s`: from the latest reading
-    /// while it is fresh and hit the pad, else from the levels; above the ground until a
-    /// reading has hit the pad, `None` before any reading.
-    pub fn height_above_pad_m(&self, time_s: f64, altitude_up_m: f64) -> Option<f64> {
-        if let Some((pad_up_m, at_s)) = self.latest_pad_up_m {
-            if time_s - at_s <= self.config.reading_fresh_s {
-                return Some(altitude_up_m - pad_up_m);
-            }
-        }
-        let ground_up_m = self.ground_up_m?;
-        Some(altitude_up_m - ground_up_m - self.pad_above_ground_m.unwrap_or(0.0))
+    fn learn_pad_height(&mut self, step_m: f64) {
+        let weight = self.config.step_weight;
+        let pad_m = self.pad_above_ground_m.get_or_insert(step_m);
+        *pad_m += weight * (step_m - *pad_m);
     }
 
-    /// The pad's top above the ground, once seen.
+    /// The height above the pad at `altitude_up_m`: the latest reading (less the pad's
+    /// height when it hit the ground) moved by the altitude change since; above the ground
+    /// until a step has measured the pad, `None` before any reading.
+    pub fn height_above_pad_m(&self, altitude_up_m: f64) -> Option<f64> {
+        let latest = self.latest?;
+        let height_m = latest.height_m + (altitude_up_m - latest.altitude_up_m);
+        Some(match latest.surface {
+            Surface::Pad => height_m,
+            Surface::Ground => height_m - self.pad_above_ground_m.unwrap_or(0.0),
+        })
+    }
+
+    /// The pad's top above the ground, once measured.
     pub fn pad_above_ground_m(&self) -> Option<f64> {
         self.pad_above_ground_m
     }
@@ -188,16 +206,13 @@ mod tests {
             );
             let truth_m = true_up_m - pad_m;
             if tick > 40 {
-                let got_m = estimator
-                    .height_above_pad_m(time_s, true_up_m + drift_m)
-                    .unwrap();
+                let got_m = estimator.height_above_pad_m(true_up_m + drift_m).unwrap();
                 worst_m = worst_m.max((got_m - truth_m).abs());
             }
             raw_jump_m = raw_jump_m.max((reading_m - truth_m).abs());
         }
         assert!(raw_jump_m > 0.9, "the scenario must jump: {raw_jump_m}");
         assert!(worst_m < 0.06, "height error up to {worst_m} m");
-        // The pad's height also takes up the ground level's lag behind the drift (~3 cm).
         let learned_m = estimator.pad_above_ground_m().unwrap();
         assert!((learned_m - pad_m).abs() < 0.05, "pad {learned_m} m");
     }
@@ -208,32 +223,87 @@ mod tests {
     #[test]
     fn the_pad_height_is_remembered_while_the_beam_sees_only_the_ground() {
         let mut estimator = PadHeightEstimator::new(PadHeightConfig::default()).unwrap();
-        assert_eq!(estimator.height_above_pad_m(0.0, 5.0), None);
+        assert_eq!(estimator.height_above_pad_m(5.0), None);
         estimator.update(0.0, 0.1, 0.1);
         estimator.update(1.0, 7.5, 7.5);
-        assert!((estimator.height_above_pad_m(1.0, 7.5).unwrap() - 7.5).abs() < 1e-9);
+        assert!((estimator.height_above_pad_m(7.5).unwrap() - 7.5).abs() < 1e-9);
         for tick in 0..40 {
             estimator.update(2.0 + tick as f64 * 0.1, 6.3, 7.5);
         }
-        // Just after a pad reading the height is that reading, moved by the altitude since.
-        assert!((estimator.height_above_pad_m(5.95, 7.4).unwrap() - 6.2).abs() < 1e-9);
+        // After a pad reading the height is that reading, moved by the altitude since.
+        assert!((estimator.height_above_pad_m(7.4).unwrap() - 6.2).abs() < 1e-9);
         for tick in 0..40 {
             let surface = estimator.update(6.0 + tick as f64 * 0.1, 7.5, 7.5);
             assert_eq!(surface, Some(Surface::Ground));
         }
-        assert!((estimator.height_above_pad_m(10.0, 7.5).unwrap() - 6.3).abs() < 0.01);
+        assert!((estimator.height_above_pad_m(7.5).unwrap() - 6.3).abs() < 1e-9);
+    }
+
+    /// A real PX4's barometric altitude drifts: here 0.8 m (twice the gate) over a minute in
+    /// which the beam never leaves the pad, then the vehicle descends onto it. A level-based
+    /// estimate took the pad for the ground by then and ended the descent 0.45 m up; the
+    /// height must stay the reading.
+    #[test]
+    fn an_altitude_drifting_past_the_gate_does_not_move_the_pad() {
+        let mut estimator = PadHeightEstimator::new(PadHeightConfig::default()).unwrap();
+        let pad_m = 1.1;
+        // Take-off from the field, a flight out at 8.5 m, and onto the pad.
+        estimator.update(0.0, 0.1, 0.1);
+        estimator.update(5.0, 8.5, 8.5);
+        assert_eq!(estimator.update(5.1, 8.5 - pad_m, 8.5), Some(Surface::Pad));
+        let dt_s = 0.05;
+        for tick in 0..1200 {
+            let time_s = 5.2 + tick as f64 * dt_s;
+            let true_up_m = 8.5 - 7.0 * (tick as f64 / 1200.0).powi(2);
+            let drift_m = -0.8 * tick as f64 / 1200.0;
+            let reading_m = true_up_m - pad_m;
+            let surface = estimator.update(time_s, reading_m, true_up_m + drift_m);
+            assert_eq!(surface, Some(Surface::Pad), "at {time_s} s");
+            let got_m = estimator.height_above_pad_m(true_up_m + drift_m).unwrap();
+            assert!(
+                (got_m - reading_m).abs() < 1e-9,
+                "{got_m} against {reading_m}"
+            );
+        }
+    }
+
+    /// Taken off from the pad, the first surface is the pad, not the field: the step down
+    /// onto the field says so, and measures the pad.
+    #[test]
+    fn a_take_off_from_the_pad_learns_it_from_the_step_down() {
+        let mut estimator = PadHeightEstimator::new(PadHeightConfig::default()).unwrap();
+        estimator.update(0.0, 0.1, 0.1);
+        estimator.update(1.0, 3.0, 3.0);
+        assert!((estimator.height_above_pad_m(3.0).unwrap() - 3.0).abs() < 1e-9);
+        // Off the tractor's side: the surface drops by the pad's height.
+        assert_eq!(estimator.update(1.1, 4.0, 3.0), Some(Surface::Ground));
+        assert_eq!(estimator.pad_above_ground_m(), Some(1.0));
+        assert!((estimator.height_above_pad_m(3.0).unwrap() - 3.0).abs() < 1e-9);
     }
 
     #[test]
     fn bad_readings_are_ignored_and_bad_config_is_named() {
         let mut estimator = PadHeightEstimator::new(PadHeightConfig::default()).unwrap();
         assert_eq!(estimator.update(0.0, f64::NAN, 1.0), None);
-        assert_eq!(estimator.height_above_pad_m(0.0, 1.0), None);
-        let error = PadHeightEstimator::new(PadHeightConfig {
-            gate_m: 0.0,
-            ..PadHeightConfig::default()
-        })
-        .unwrap_err();
-        assert!(error.to_string().contains("gate_m"), "{error}");
+        assert_eq!(estimator.height_above_pad_m(1.0), None);
+        for (config, name) in [
+            (
+                PadHeightConfig {
+                    gate_m: 0.0,
+                    ..PadHeightConfig::default()
+                },
+                "gate_m",
+            ),
+            (
+                PadHeightConfig {
+                    step_weight: 1.5,
+                    ..PadHeightConfig::default()
+                },
+                "step_weight",
+            ),
+        ] {
+            let error = PadHeightEstimator::new(config).unwrap_err();
+            assert!(error.to_string().contains(name), "{error}");
+        }
     }
 }

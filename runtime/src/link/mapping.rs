@@ -430,15 +430,15 @@ impl TelemetryState {
     }
 
     /// The vehicle as last reported, once both attitude and position have come in. Height is
-    /// above the pad from the rangefinder ([`PadHeightEstimator`]: its fresh reading on the pad,
-    /// its levels when the beam hits the ground beside the pad), else the latest reading when younger
+    /// above the pad from the rangefinder ([`PadHeightEstimator`]: its latest reading, less the
+    /// pad's height when the beam hit the ground beside the pad), else the latest reading when younger
     /// than [`RANGEFINDER_STALE_S`], else −z (height above the home point).
     pub fn vehicle_state(&self, now_s: f64) -> Option<VehicleState> {
         let attitude = self.attitude?;
         let position = self.position_ned_m?;
         let height_above_pad_m = self
             .pad_height
-            .height_above_pad_m(now_s, -position.z)
+            .height_above_pad_m(-position.z)
             .or(self
                 .rangefinder
                 .filter(|(_, at_s)| now_s - at_s <= RANGEFINDER_STALE_S)

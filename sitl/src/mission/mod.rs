@@ -18,7 +18,9 @@ use runtime::clock::Timestamp;
 use runtime::energy::MissionModel;
 use runtime::link::{LinkConfig, MavlinkLink};
 use runtime::mission::runner::LOCKSTEP_TIMEOUT;
-use runtime::mission::{MissionEvent, MissionPlan, MissionRunner, RunnerError, RunnerOptions};
+use runtime::mission::{
+    LandingBy, MissionEvent, MissionPlan, MissionRunner, RunnerError, RunnerOptions,
+};
 use runtime::record::{
     ConfigFile, RecordError, Recorder, RecorderOptions, RecordingHeader, RecordingSource,
 };
@@ -167,6 +169,11 @@ pub fn simulate(
     // The vehicle and who flies it; the runtime's MAVLink to its autopilot, as on a drone.
     let telemetry = &realism.telemetry;
     let (mut flyer, link, _autopilot_process) = match &options.autopilot {
+        None if MissionPlan::for_mission(&model.config).landing
+            == LandingBy::AutopilotPrecision =>
+        {
+            return Err(SimError::NoPrecisionLanding);
+        }
         None => {
             // MAVLink over the loopback, as with PX4 SITL: the autopilot sends to the
             // runtime's port.

@@ -140,6 +140,13 @@ pub enum SimError {
     Link(#[source] Cause),
     #[error(transparent)]
     Record(#[from] RecordError),
+    #[error(
+        "the built-in autopilot has no precision landing of its own, and this mission asks for one \
+         ([link] landing_target = true, no landing task in the last phase): fly it with \
+         --autopilot px4 (-m gazebo-classic_iris_irlock) or --autopilot ardupilot (PLND_ENABLED=1), \
+         or give the last phase a landing task"
+    )]
+    NoPrecisionLanding,
     #[error("--fix {task}={value}: {why}")]
     FixedLevel {
         task: String,

@@ -43,6 +43,7 @@ fn heartbeat_decodes_px4_and_ardupilot_modes_and_armed() {
     assert_eq!(px4(0x0006_0000).unwrap().mode, AutopilotMode::Offboard);
     assert!(px4(0x0006_0000).unwrap().armed);
     assert_eq!(px4(0x0604_0000).unwrap().mode, AutopilotMode::Land);
+    assert_eq!(px4(0x0904_0000).unwrap().mode, AutopilotMode::Land);
     assert_eq!(px4(0x0204_0000).unwrap().mode, AutopilotMode::Takeoff);
     assert_eq!(px4(0x0304_0000).unwrap().mode, AutopilotMode::Hold);
     assert_eq!(px4(0x0003_0000).unwrap().mode, AutopilotMode::Position);
@@ -530,6 +531,17 @@ fn commands_encode_as_px4_expects() {
         panic!("not a COMMAND_LONG");
     };
     assert_eq!(guided.param2, 4.0);
+    // The autopilot's own precision landing: PX4 AUTO.PRECLAND (main 4, sub 9), ArduPilot
+    // LAND (9), which lands precisely when PLND_ENABLED.
+    for (autopilot, mode) in [(&target, (4.0, 9.0)), (&ardupilot, (9.0, 0.0))] {
+        let MavMessage::COMMAND_LONG(precland) =
+            command_message(&VehicleCommand::PrecisionLand, autopilot, 0)
+        else {
+            panic!("not a COMMAND_LONG");
+        };
+        assert_eq!(precland.command, MavCmd::MAV_CMD_DO_SET_MODE);
+        assert_eq!((precland.param2, precland.param3), mode);
+    }
     let MavMessage::COMMAND_LONG(arm) = command_message(&VehicleCommand::Arm, &target, 0) else {
         panic!("not a COMMAND_LONG");
     };

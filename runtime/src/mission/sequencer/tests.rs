@@ -18,6 +18,8 @@ struct Obedient {
     view: AutopilotView,
     velocity: Vector3<f64>,
     streamed_s: f64,
+    /// Precision landings asked for: it lands on the second (a slow autopilot).
+    precision_lands: usize,
 }
 
 impl Obedient {
@@ -32,6 +34,7 @@ impl Obedient {
             },
             velocity: Vector3::zeros(),
             streamed_s: 0.0,
+            precision_lands: 0,
         }
     }
 
@@ -55,6 +58,12 @@ impl Obedient {
                     self.streamed_s += dt_s;
                 }
                 VehicleCommand::Land => self.view.mode = AutopilotMode::Land,
+                VehicleCommand::PrecisionLand => {
+                    self.precision_lands += 1;
+                    if self.precision_lands >= 2 {
+                        self.view.mode = AutopilotMode::Land;
+                    }
+                }
                 other => panic!("the sequencer never sends {other:?}"),
             }
         }
@@ -429,6 +438,64 @@ fn without_a_camera_the_last_phase_lands_with_the_autopilot() {
         .unwrap();
     assert!(last_phase_at < landing_at);
     assert_eq!(events.last(), Some(&MissionEvent::Disarmed));
+}
+
+/// No landing task and LANDING_TARGETs on: the last phase is the autopilot's precision
+/// landing, asked again (the same one, not its plain land) until the autopilot is in it.
+#[test]
+fn the_autopilot_lands_by_its_precision_landing_when_asked() {
+    let mut sequencer = MissionSequencer::new(MissionPlan {
+        landing: LandingBy::AutopilotPrecision,
+        ..plan()
+    });
+    let mut autopilot = Obedient::new();
+    let mut time_s = 0.0;
+    let events = fly_until(&mut sequencer, &mut autopilot, &mut time_s, |s, _| {
+        s.status().finished
+    });
+    assert_eq!(autopilot.precision_lands, 2, "{events:?}");
+    let reason = events
+        .iter()
+        .find_map(|e| match e {
+            MissionEvent::LandingHere { reason } => Some(reason.as_str()),
+            _ => None,
+        })
+        .expect("landed by the autopilot");
+    assert!(reason.contains("precision"), "{reason}");
+    assert_eq!(events.last(), Some(&MissionEvent::Disarmed));
+    assert!(!events
+        .iter()
+        .any(|e| matches!(e, MissionEvent::TakenOver { .. })));
+}
+
+/// The plan says who lands from the config: the landing task when it flies the last phase,
+/// else the autopilot, by its precision landing when `[link] landing_target` is on.
+#[test]
+fn the_plan_takes_who_lands_from_the_config() {
+    let reference = include_str!("../../../../qos.toml");
+    let catalog = crate::catalog::PluginCatalog::builtin();
+    let landing_by = |text: &str| {
+        let config = crate::config::load_str(text, None, &catalog).unwrap();
+        MissionPlan::for_mission(&config).landing
+    };
+    let landing_task = reference.find("[[task]]\nname = \"landing\"").unwrap();
+    let hazard_task = reference.find("[[task]]\nname = \"hazard\"").unwrap();
+    let without = format!(
+        "{}{}",
+        &reference[..landing_task],
+        &reference[hazard_task..]
+    );
+    let targets = "\n[link]\nlanding_target = true\n";
+    assert_eq!(landing_by(reference), LandingBy::Vision);
+    assert_eq!(
+        landing_by(&format!("{reference}{targets}")),
+        LandingBy::Vision
+    );
+    assert_eq!(landing_by(&without), LandingBy::Autopilot);
+    assert_eq!(
+        landing_by(&format!("{without}{targets}")),
+        LandingBy::AutopilotPrecision
+    );
 }
 
 #[test]
