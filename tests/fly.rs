@@ -63,7 +63,7 @@ fn flies_px4_through_offboard_and_lands_it_with_auto_land() {
         "offboard engaged",
         "phase tracking started",
         "phase landing started",
-        "landing where the vehicle is: no camera: the autopilot lands where the vehicle is",
+        "landing where the vehicle is: no vision landing (no camera, or no landing task in the last phase): the autopilot lands where the vehicle is",
         "landed and disarmed",
     ];
     let positions: Vec<Option<usize>> = order

@@ -465,7 +465,7 @@ impl MissionSequencer {
                 let reason = if precise {
                     "the autopilot's precision landing on the tracker's LANDING_TARGET"
                 } else {
-                    "no landing task: the autopilot lands where the vehicle is"
+                    "no vision landing (no camera, or no landing task in the last phase): the autopilot lands where the vehicle is"
                 };
                 events.push(MissionEvent::LandingHere {
                     reason: reason.into(),
