@@ -4,17 +4,12 @@
 //! docs/simulator.md).
 
 mod common;
-use common::qosrt;
+use common::{output_text, qosrt};
 
 #[test]
 fn the_precland_config_checks() {
     let out = qosrt(&["check", "configs/precland.toml"]);
-    assert!(
-        out.status.success(),
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{}", output_text(&out));
 }
 
 #[test]

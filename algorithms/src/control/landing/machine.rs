@@ -9,9 +9,8 @@ use crate::control::wind_shear::descent_feed_forward_ne_m_s;
 
 /// Low-pass time constant on the aerodynamic acceleration (the link differentiates velocities).
 const AERODYNAMIC_ACCEL_TAU_S: f64 = 0.2;
-/// Low-pass time constant on the descent rate, and the
-/// fraction of the commanded descent rate below which a committed descent near the pad counts
-/// as stopped by it.
+/// Low-pass time constant on the descent rate, and the fraction of the commanded descent rate
+/// below which a committed descent near the pad counts as stopped by it.
 const DESCENT_RATE_TAU_S: f64 = 0.05;
 const STALLED_DESCENT_FRACTION: f64 = 0.3;
 
