@@ -51,6 +51,12 @@ pub enum WindConfig {
         speed_m_s: f64,
         direction_from_rad: f64,
     },
+    /// The seed's force law and ground ramp at a constant `speed_m_s`, no gusts: a clean step
+    /// input when switched on in flight (the autopilots' hover-in-gust response).
+    Steady {
+        speed_m_s: f64,
+        direction_from_rad: f64,
+    },
     /// MIL-F-8785C low-altitude Dryden turbulence around a mean wind whose speed at 6 m (20 ft)
     /// is `speed_m_s`, following the standard's log profile with altitude.
     Dryden {
@@ -229,6 +235,10 @@ impl Wind {
                 speed_m_s,
                 direction_from_rad,
             }
+            | WindConfig::Steady {
+                speed_m_s,
+                direction_from_rad,
+            }
             | WindConfig::Dryden {
                 speed_m_s,
                 direction_from_rad,
@@ -286,6 +296,16 @@ impl Wind {
         factor
     }
 
+    /// The speed of the seed's force law at `time_s` (above the ground ramp): the nominal speed
+    /// times the gust factor for `Gusts`, the speed for `Steady`, 0 otherwise.
+    fn seed_speed_m_s(&mut self, time_s: f64) -> f64 {
+        match self.config {
+            WindConfig::Gusts { speed_m_s, .. } => speed_m_s * (1.0 + self.gust_factor(time_s)),
+            WindConfig::Steady { speed_m_s, .. } => speed_m_s,
+            WindConfig::Calm | WindConfig::Dryden { .. } => 0.0,
+        }
+    }
+
     /// The wind's velocity at the vehicle, NED. For `Gusts` it is the speed whose seed force is
     /// applied (so it also ramps below 6 m, as √ of the force ramp). For `Dryden` the turbulence
     /// advances to `time_s` using the airspeed of the last [`Self::force_ned_n`] call.
@@ -293,11 +313,12 @@ impl Wind {
         match self.config {
             WindConfig::Calm => Vector3::zeros(),
             WindConfig::Gusts {
-                speed_m_s,
-                direction_from_rad,
+                direction_from_rad, ..
+            }
+            | WindConfig::Steady {
+                direction_from_rad, ..
             } => {
-                let speed =
-                    speed_m_s * (1.0 + self.gust_factor(time_s)) * ground_ramp(altitude_m).sqrt();
+                let speed = self.seed_speed_m_s(time_s) * ground_ramp(altitude_m).sqrt();
                 let d = downwind_ne(direction_from_rad);
                 Vector3::new(d.x, d.y, 0.0) * speed
             }
@@ -324,10 +345,12 @@ impl Wind {
         match self.config {
             WindConfig::Calm => Vector3::zeros(),
             WindConfig::Gusts {
-                speed_m_s,
-                direction_from_rad,
+                direction_from_rad, ..
+            }
+            | WindConfig::Steady {
+                direction_from_rad, ..
             } => {
-                let speed = speed_m_s * (1.0 + self.gust_factor(time_s));
+                let speed = self.seed_speed_m_s(time_s);
                 let d = downwind_ne(direction_from_rad);
                 Vector3::new(d.x, d.y, 0.0) * (k * speed * speed * ground_ramp(altitude_m))
             }
@@ -405,6 +428,32 @@ mod tests {
             7,
         )
         .unwrap()
+    }
+
+    #[test]
+    fn a_steady_wind_is_the_seed_force_without_its_gusts() {
+        let mut wind = Wind::new(
+            WindConfig::Steady {
+                speed_m_s: 8.0,
+                direction_from_rad: PI / 2.0,
+            },
+            3,
+        )
+        .unwrap();
+        // The seed's 3.45 N at 8 m/s, towards the west, at every time (the gusts would redraw
+        // it every 5.5 s), and half of it at 3 m, half-way up the ground ramp.
+        for time_s in [0.0, 3.0, 7.0, 60.0] {
+            let force = wind.force_ned_n(time_s, 10.0, Vector3::zeros());
+            assert!((force.y + 3.45).abs() < 0.01, "{time_s} s: {force}");
+            assert!(
+                force.x.abs() < 1e-9 && force.z == 0.0,
+                "{time_s} s: {force}"
+            );
+            let low = wind.force_ned_n(time_s, 3.0, Vector3::zeros());
+            assert!((low.y * 2.0 - force.y).abs() < 1e-9, "{low} at 3 m");
+            let velocity = wind.wind_velocity_ned_m_s(time_s, 10.0);
+            assert!((velocity.y + 8.0).abs() < 1e-9, "{velocity}");
+        }
     }
 
     #[test]

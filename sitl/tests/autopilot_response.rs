@@ -1,8 +1,10 @@
 //! The built-in autopilot (`sim::vehicle::Multirotor`, `VehicleParams::default()`) against the
 //! real PX4 (v1.16.0 `none_iris` over HIL) and the real ArduPilot (Copter 4.6.3 over JSON) on
-//! the same input: hovering at 5 m in calm air, a velocity step from 0 to 2 m/s north held for
-//! 6 s, then back to 0 for 6 s. Each response is measured on the world's truth at 100 Hz: the
-//! 63 % rise time, the overshoot, the peak tilt and the settling time (±10 % of the step).
+//! the same input: hovering at 8 m in calm air, a velocity step from 0 to 2 m/s north held for
+//! 6 s, then back to 0 for 6 s; then, still asked to hold 0 m/s, a 12 m/s wind from the north
+//! switched on at once and held 20 s. Each response is measured on the world's truth at
+//! 100 Hz: the step's 63 % rise time, overshoot, peak tilt and settling time (±10 % of the
+//! step); the gust's peak drift speed and distance, recovery time and tilts.
 //! Skips, saying why, without `../shared/px4-sitl` and `../shared/ardupilot-sitl`. PX4 and
 //! ArduPilot fly one after the other, never together.
 
@@ -32,7 +34,10 @@ mod common;
 use common::{command_long, shared_dir, start};
 #[path = "autopilot_response/figures.rs"]
 mod figures;
-use figures::{north_setpoint, print_table, response, Response, Sample, STEP_HOLD_S};
+use figures::{
+    gust_figures, north_setpoint, print_gust_table, print_table, response, GustFigures, Response,
+    Sample, GUST_HOLD_S, GUST_SPEED_M_S, STEP_HOLD_S,
+};
 
 /// Instances no other test uses: PX4 9 (HIL TCP 4569, onboard UDP 14549, system 10) and
 /// ArduPilot 9 (MAVLink TCP 5850, JSON UDP 9092; 7 is what `qosrt evaluate` runs were seen on).
@@ -40,7 +45,8 @@ const PX4_INSTANCE: u8 = 9;
 const ARDUPILOT_INSTANCE: u8 = 9;
 const ARDUPILOT_WORLD_ARGS: &str = "-M JSON:127.0.0.1 -s 100 -P FRAME_TYPE=1 -P RNGFND1_TYPE=100 -P BATT_MONITOR=0 -P ANGLE_MAX=4500 -O 47.397742,8.545594,488,0";
 
-const HOVER_ALTITUDE_M: f64 = 5.0;
+/// Above the seed wind's 6 m ground ramp: the gust pushes every vehicle alike.
+const HOVER_ALTITUDE_M: f64 = 8.0;
 const SAMPLE_PERIOD_S: f64 = 0.01;
 const SETPOINT_PERIOD_S: f64 = 0.05;
 /// Velocity only, in LOCAL_NED: position, acceleration, yaw and yaw rate ignored (3527).
@@ -65,6 +71,25 @@ fn calm_world() -> World {
     World::new(tractor, Wind::new(WindConfig::Calm, 1).unwrap())
 }
 
+/// The gust switched on in the calm world: steady, from the north.
+fn gust() -> Wind {
+    Wind::new(
+        WindConfig::Steady {
+            speed_m_s: GUST_SPEED_M_S,
+            direction_from_rad: 0.0,
+        },
+        1,
+    )
+    .unwrap()
+}
+
+/// The two responses of one vehicle.
+#[derive(Debug, Clone, Copy)]
+struct Responses {
+    step: Response,
+    gust: GustFigures,
+}
+
 /// What the world thread shares with the ground station.
 #[derive(Debug, Default)]
 struct Shared {
@@ -75,13 +100,16 @@ struct Shared {
     streaming: bool,
     /// The simulated time of the step up; the world thread applies it on its own clock.
     step_at_s: Option<f64>,
+    /// The simulated time the gust starts; the world thread switches the wind on then.
+    gust_at_s: Option<f64>,
     error: Option<String>,
 }
 
-/// The lockstep loop: `step` moves the world by one autopilot frame and returns the time and
+/// The lockstep loop: `step` moves `world` by one autopilot frame and returns the time and
 /// the body's state; `send_north` sends a velocity setpoint north to the autopilot.
 fn world_loop(
-    mut step: impl FnMut() -> Result<(f64, BodyState), String>,
+    mut world: World,
+    mut step: impl FnMut(&mut World) -> Result<(f64, BodyState), String>,
     mut send_north: impl FnMut(f64),
     shared: &Mutex<Shared>,
     stop: &AtomicBool,
@@ -91,7 +119,7 @@ fn world_loop(
     let mut next_setpoint_s = 0.0;
     let mut time_s = 0.0;
     while !stop.load(Ordering::Relaxed) {
-        let state = match step() {
+        let state = match step(&mut world) {
             Ok((t, state)) => {
                 time_s = t;
                 state
@@ -104,6 +132,9 @@ fn world_loop(
         let mut s = shared.lock().unwrap();
         s.time_s = time_s;
         s.altitude_m = -state.position_ned_m.z;
+        if s.gust_at_s.is_some_and(|at| time_s >= at) && world.wind.config() == WindConfig::Calm {
+            world.wind = gust();
+        }
         if time_s >= next_sample_s {
             s.samples.push(Sample {
                 time_s,
@@ -165,15 +196,16 @@ fn wait_until(
     }
 }
 
-/// The hover, the setpoint stream, the step: common to both real autopilots once airborne.
-/// `pump` reads the ground station's link; `enter_offboard` is called once the stream runs.
-fn fly_step(
+/// The hover, the setpoint stream, the step, the gust: common to both real autopilots once
+/// airborne. `pump` reads the ground station's link; `enter_offboard` is called once the stream
+/// runs. Returns the times of the step and of the gust.
+fn fly_step_and_gust(
     shared: &Mutex<Shared>,
     deadline: Instant,
     mut pump: impl FnMut(),
     enter_offboard: impl FnOnce(&mut dyn FnMut()),
-) -> f64 {
-    wait_until(shared, deadline, "hover at 5 m", &mut pump, |s| {
+) -> (f64, f64) {
+    wait_until(shared, deadline, "hover at 8 m", &mut pump, |s| {
         (s.altitude_m - HOVER_ALTITUDE_M).abs() < 0.5
     });
     let settle_until = shared.lock().unwrap().time_s + 3.0;
@@ -202,17 +234,49 @@ fn fly_step(
     wait_until(shared, deadline, "the step's end", &mut pump, |s| {
         s.time_s >= step_at_s + 2.0 * STEP_HOLD_S + 0.2
     });
-    step_at_s
+    let gust_at_s = {
+        let mut s = shared.lock().unwrap();
+        let at = s.time_s + 0.5;
+        s.gust_at_s = Some(at);
+        at
+    };
+    wait_until(shared, deadline, "the gust's end", &mut pump, |s| {
+        s.time_s >= gust_at_s + GUST_HOLD_S + 0.2
+    });
+    (step_at_s, gust_at_s)
 }
 
-fn px4_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
+/// The figures of a real autopilot's flight, printed with its pace.
+fn responses_of(
+    name: &str,
+    shared: &Mutex<Shared>,
+    times: (f64, f64),
+    speedup: f64,
+    wall: Instant,
+) -> Responses {
+    let (step_at_s, gust_at_s) = times;
+    let samples = std::mem::take(&mut shared.lock().unwrap().samples);
+    eprintln!(
+        "{name}: step at t = {step_at_s:.1} s, gust at {gust_at_s:.1} s, {speedup:.1}× real time, {:.1} s wall",
+        wall.elapsed().as_secs_f64()
+    );
+    Responses {
+        step: response(&samples, step_at_s),
+        gust: gust_figures(&samples, gust_at_s),
+    }
+}
+
+fn px4_responses(dir: &Path) -> Responses {
     let wall = Instant::now();
-    let deadline = wall + Duration::from_secs(120);
+    let deadline = wall + Duration::from_secs(150);
     let listener = Px4Hil::listen(PX4_INSTANCE).unwrap();
     let _px4 = start(
         dir,
         &["-i", &PX4_INSTANCE.to_string(), "-m", "none_iris"],
-        &[("PX4_PARAMS", "MIS_TAKEOFF_ALT 5")],
+        &[(
+            "PX4_PARAMS",
+            &format!("MIS_TAKEOFF_ALT {HOVER_ALTITUDE_M}") as &str,
+        )],
     );
     let hil = Px4Hil::accept(&listener, PX4_INSTANCE, Duration::from_secs(20)).unwrap();
     let body = Quadrotor::on_ground(QuadrotorParams::default(), Vector3::zeros()).unwrap();
@@ -234,10 +298,10 @@ fn px4_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
         let (shared, stop, peer) = (shared.clone(), stop.clone(), peer.clone());
         let socket = gcs.try_clone().unwrap();
         std::thread::spawn(move || {
-            let mut world = calm_world();
             world_loop(
-                || {
-                    vehicle.step(&mut world).map_err(|e| e.to_string())?;
+                calm_world(),
+                |world| {
+                    vehicle.step(world).map_err(|e| e.to_string())?;
                     Ok((vehicle.time_s, *vehicle.body.state()))
                 },
                 |north| {
@@ -279,7 +343,7 @@ fn px4_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
         assert!(shared.lock().unwrap().error.is_none());
         pump();
     }
-    // Arm (refused until EKF2 is ready), then take off to MIS_TAKEOFF_ALT = 5 m.
+    // Arm (refused until EKF2 is ready), then take off to MIS_TAKEOFF_ALT = 8 m.
     loop {
         assert!(Instant::now() < deadline, "PX4 never armed");
         assert!(shared.lock().unwrap().error.is_none());
@@ -298,7 +362,7 @@ fn px4_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
         MavCmd::MAV_CMD_NAV_TAKEOFF,
         [0.0, 0.0, 0.0, f32::NAN, f32::NAN, f32::NAN, f32::NAN],
     );
-    let step_at_s = fly_step(&shared, deadline, pump, |pump| loop {
+    let times = fly_step_and_gust(&shared, deadline, pump, |pump| loop {
         assert!(Instant::now() < deadline, "OFFBOARD refused");
         issue(
             MavCmd::MAV_CMD_DO_SET_MODE,
@@ -313,17 +377,12 @@ fn px4_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
     });
     stop.store(true, Ordering::Relaxed);
     let speedup = world.join().unwrap();
-    let samples = std::mem::take(&mut shared.lock().unwrap().samples);
-    eprintln!(
-        "PX4: step at t = {step_at_s:.1} s, {speedup:.1}× real time, {:.1} s wall",
-        wall.elapsed().as_secs_f64()
-    );
-    (response(&samples, step_at_s), samples, step_at_s)
+    responses_of("PX4", &shared, times, speedup, wall)
 }
 
-fn ardupilot_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
+fn ardupilot_responses(dir: &Path) -> Responses {
     let wall = Instant::now();
-    let deadline = wall + Duration::from_secs(120);
+    let deadline = wall + Duration::from_secs(150);
     let backend = ArduPilotJson::bind(ARDUPILOT_INSTANCE).unwrap();
     let instance = ARDUPILOT_INSTANCE.to_string();
     let mut args = vec!["-I", &instance];
@@ -344,10 +403,10 @@ fn ardupilot_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
     let world = {
         let (shared, stop, link) = (shared.clone(), stop.clone(), link.clone());
         std::thread::spawn(move || {
-            let mut world = calm_world();
             world_loop(
-                || {
-                    vehicle.step(&mut world).map_err(|e| e.to_string())?;
+                calm_world(),
+                |world| {
+                    vehicle.step(world).map_err(|e| e.to_string())?;
                     Ok((vehicle.time_s, *vehicle.body.state()))
                 },
                 |north| {
@@ -443,23 +502,17 @@ fn ardupilot_response(dir: &Path) -> (Response, Vec<Sample>, f64) {
         last_texts()
     );
     // GUIDED takes velocity setpoints as they come: no mode change.
-    let step_at_s = fly_step(&shared, deadline, pump, |_| {});
+    let times = fly_step_and_gust(&shared, deadline, pump, |_| {});
     stop.store(true, Ordering::Relaxed);
     let speedup = world.join().unwrap();
-    let samples = std::mem::take(&mut shared.lock().unwrap().samples);
-    eprintln!(
-        "ArduPilot: step at t = {step_at_s:.1} s, {speedup:.1}× real time, {:.1} s wall",
-        wall.elapsed().as_secs_f64()
-    );
-    (response(&samples, step_at_s), samples, step_at_s)
+    responses_of("ArduPilot", &shared, times, speedup, wall)
 }
 
-/// The built-in vehicle with `params` on the same flight: take-off to 5 m, a settled hover,
-/// offboard setpoints every 50 ms, the step; the world at 100 Hz.
-fn builtin_response(params: VehicleParams) -> Response {
+/// The built-in vehicle with `params` on the same flight: take-off to 8 m, a settled hover,
+/// offboard setpoints every 50 ms, the step, the gust; the world at 100 Hz.
+fn builtin_responses(params: VehicleParams) -> Responses {
     let mut world = calm_world();
     let mut vehicle = Multirotor::on_ground(params, Vector3::zeros()).unwrap();
-    let dt = SAMPLE_PERIOD_S;
     let mut t = 0.0;
     vehicle.command(AutopilotCommand::Arm, t).unwrap();
     vehicle
@@ -471,22 +524,23 @@ fn builtin_response(params: VehicleParams) -> Response {
         )
         .unwrap();
     let mut samples = Vec::new();
-    let mut advance = |vehicle: &mut Multirotor, t: &mut f64, samples: &mut Vec<Sample>| {
-        world.step(*t, dt, vehicle).unwrap();
-        *t += dt;
-        samples.push(Sample {
-            time_s: *t,
-            north_m_s: vehicle.velocity_ned_m_s().x,
-            tilt_deg: vehicle.tilt_rad().to_degrees(),
-        });
-    };
+    let advance =
+        |world: &mut World, vehicle: &mut Multirotor, t: &mut f64, samples: &mut Vec<Sample>| {
+            world.step(*t, SAMPLE_PERIOD_S, vehicle).unwrap();
+            *t += SAMPLE_PERIOD_S;
+            samples.push(Sample {
+                time_s: *t,
+                north_m_s: vehicle.velocity_ned_m_s().x,
+                tilt_deg: vehicle.tilt_rad().to_degrees(),
+            });
+        };
     while (-vehicle.position_ned_m().z - HOVER_ALTITUDE_M).abs() >= 0.5 {
-        assert!(t < 60.0, "the built-in never reached 5 m");
-        advance(&mut vehicle, &mut t, &mut samples);
+        assert!(t < 60.0, "the built-in never reached 8 m");
+        advance(&mut world, &mut vehicle, &mut t, &mut samples);
     }
     let settle_until = t + 3.0;
     while t < settle_until {
-        advance(&mut vehicle, &mut t, &mut samples);
+        advance(&mut world, &mut vehicle, &mut t, &mut samples);
     }
     let setpoint = |north: f64| AutopilotCommand::VelocitySetpoint {
         velocity_ned_m_s: Vector3::new(north, 0.0, 0.0),
@@ -496,8 +550,11 @@ fn builtin_response(params: VehicleParams) -> Response {
     vehicle
         .command(AutopilotCommand::SetMode(FlightMode::Offboard), t)
         .unwrap();
+    // As the real autopilots fly it: the step 2.5 s after offboard, the gust 0.7 s after the
+    // step's end.
     let step_at_s = t + 2.5;
-    let end_s = step_at_s + 2.0 * STEP_HOLD_S + 0.2;
+    let gust_at_s = step_at_s + 2.0 * STEP_HOLD_S + 0.7;
+    let end_s = gust_at_s + GUST_HOLD_S + 0.2;
     let mut next_setpoint_s = t + SETPOINT_PERIOD_S;
     while t < end_s {
         if t >= next_setpoint_s - 1e-9 {
@@ -506,44 +563,60 @@ fn builtin_response(params: VehicleParams) -> Response {
                 .unwrap();
             next_setpoint_s = t + SETPOINT_PERIOD_S;
         }
-        advance(&mut vehicle, &mut t, &mut samples);
+        if t >= gust_at_s - 1e-9 && world.wind.config() == WindConfig::Calm {
+            world.wind = gust();
+        }
+        advance(&mut world, &mut vehicle, &mut t, &mut samples);
     }
     assert_eq!(vehicle.mode(), FlightMode::Offboard);
-    response(&samples, step_at_s)
+    Responses {
+        step: response(&samples, step_at_s),
+        gust: gust_figures(&samples, gust_at_s),
+    }
 }
 
-/// The candidate built-in parameters whose response is nearest PX4's: rise and settling time
-/// (log of the ratio), peak tilt (per 10°) and overshoot (per 10 %), up and down.
-fn nearest_to(px4: &Response) -> Vec<(f64, VehicleParams, Response)> {
-    let distance = |r: &Response| {
-        [(r.up, px4.up), (r.down, px4.down)]
+/// |ln(b / p)|, or a large distance where either is missing.
+fn log_ratio(b: Option<f64>, p: Option<f64>) -> f64 {
+    match (b, p) {
+        (Some(b), Some(p)) if b > 0.0 && p > 0.0 => (b / p).ln().abs(),
+        (Some(_), Some(_)) => 1.0,
+        _ => 10.0,
+    }
+}
+
+/// The candidate built-in parameters whose responses are nearest PX4's: on the step, rise and
+/// settling time (log of the ratio), peak tilt (per 10°) and overshoot (per 10 %), up and
+/// down; in the gust, peak drift speed, distance and recovery time (log of the ratio) and peak
+/// tilt (per 10°).
+fn nearest_to(px4: &Responses) -> Vec<(f64, VehicleParams, Responses)> {
+    let distance = |r: &Responses| {
+        let step: f64 = [(r.step.up, px4.step.up), (r.step.down, px4.step.down)]
             .iter()
             .map(|(b, p)| {
-                let rise = match (b.rise_63_s, p.rise_63_s) {
-                    (Some(b), Some(p)) => (b / p).ln().abs(),
-                    _ => 10.0,
-                };
-                let settling = match (b.settling_s, p.settling_s) {
-                    (Some(b), Some(p)) => (b / p).ln().abs(),
-                    _ => 10.0,
-                };
-                rise + settling
+                log_ratio(b.rise_63_s, p.rise_63_s)
+                    + log_ratio(b.settling_s, p.settling_s)
                     + (b.peak_tilt_deg - p.peak_tilt_deg).abs() / 10.0
                     + (b.overshoot - p.overshoot).abs() / 0.1
             })
-            .sum::<f64>()
+            .sum();
+        let (b, p) = (r.gust, px4.gust);
+        let gust = log_ratio(Some(b.peak_drift_m_s), Some(p.peak_drift_m_s))
+            + log_ratio(Some(b.peak_displacement_m), Some(p.peak_displacement_m))
+            + log_ratio(b.recovery_s, p.recovery_s)
+            + (b.peak_tilt_deg - p.peak_tilt_deg).abs() / 10.0;
+        step + gust
     };
     let mut candidates = Vec::new();
     for tau in [0.05, 0.1, 0.15, 0.2, 0.3] {
         for p in [0.8, 1.0, 1.2, 1.5, 1.8, 2.2, 2.7, 3.5] {
-            for i in [0.1, 0.4, 1.0] {
+            for i in [0.1, 0.4, 1.0, 2.0] {
                 let params = VehicleParams {
                     attitude_time_constant_s: tau,
                     velocity_p_horizontal_per_s: p,
                     velocity_i_horizontal_per_s2: i,
                     ..Default::default()
                 };
-                let r = builtin_response(params);
+                let r = builtin_responses(params);
                 candidates.push((distance(&r), params, r));
             }
         }
@@ -554,7 +627,7 @@ fn nearest_to(px4: &Response) -> Vec<(f64, VehicleParams, Response)> {
 }
 
 #[test]
-fn the_builtin_follows_px4_and_ardupilot_on_a_velocity_step() {
+fn the_builtin_follows_px4_and_ardupilot_on_a_velocity_step_and_in_a_gust() {
     let wall = Instant::now();
     let (Some(px4_dir), Some(ardupilot_dir)) =
         (shared_dir("px4-sitl"), shared_dir("ardupilot-sitl"))
@@ -563,9 +636,9 @@ fn the_builtin_follows_px4_and_ardupilot_on_a_velocity_step() {
         return;
     };
     // One after the other: each SITL and its world take a core.
-    let (px4, _, _) = px4_response(&px4_dir);
-    let (ardupilot, _, _) = ardupilot_response(&ardupilot_dir);
-    let builtin = builtin_response(VehicleParams::default());
+    let px4 = px4_responses(&px4_dir);
+    let ardupilot = ardupilot_responses(&ardupilot_dir);
+    let builtin = builtin_responses(VehicleParams::default());
     let nearest = nearest_to(&px4);
     let mut rows = vec![
         ("PX4 v1.16 (none_iris)", px4),
@@ -575,7 +648,10 @@ fn the_builtin_follows_px4_and_ardupilot_on_a_velocity_step() {
     for (k, (_, _, r)) in nearest.iter().enumerate() {
         rows.push((["candidate 1", "candidate 2", "candidate 3"][k], *r));
     }
-    print_table(&rows);
+    let steps: Vec<(&str, Response)> = rows.iter().map(|(name, r)| (*name, r.step)).collect();
+    print_table(&steps);
+    let gusts: Vec<(&str, GustFigures)> = rows.iter().map(|(name, r)| (*name, r.gust)).collect();
+    print_gust_table(&gusts);
     for (k, (d, p, _)) in nearest.iter().enumerate() {
         eprintln!(
             "candidate {}: attitude_time_constant_s {}, velocity_p_horizontal_per_s {}, velocity_i_horizontal_per_s2 {} (distance {d:.2})",
@@ -587,11 +663,15 @@ fn the_builtin_follows_px4_and_ardupilot_on_a_velocity_step() {
     }
     eprintln!("wall time {:.1} s", wall.elapsed().as_secs_f64());
 
-    // The real autopilots follow the step: the test drives them right.
+    // The real autopilots follow the step and ride out the gust: the test drives them right.
     for (name, r) in [("PX4", px4), ("ArduPilot", ardupilot)] {
         assert!(
-            r.up.reached && r.down.reached,
+            r.step.up.reached && r.step.down.reached,
             "{name} did not follow the step: {r:?}"
+        );
+        assert!(
+            r.gust.recovery_s.is_some(),
+            "{name} did not recover from the gust: {r:?}"
         );
     }
     // The built-in against PX4.
@@ -602,7 +682,10 @@ fn the_builtin_follows_px4_and_ardupilot_on_a_velocity_step() {
         best.velocity_p_horizontal_per_s,
         best.velocity_i_horizontal_per_s2
     );
-    for (label, b, p) in [("up", builtin.up, px4.up), ("down", builtin.down, px4.down)] {
+    for (label, b, p) in [
+        ("up", builtin.step.up, px4.step.up),
+        ("down", builtin.step.down, px4.step.down),
+    ] {
         let (Some(rise_b), Some(rise_p)) = (b.rise_63_s, p.rise_63_s) else {
             panic!("step {label}: no 63 % rise: built-in {b:?}, PX4 {p:?}");
         };
@@ -619,4 +702,27 @@ fn the_builtin_follows_px4_and_ardupilot_on_a_velocity_step() {
             p.peak_tilt_deg
         );
     }
+    let (b, p) = (builtin.gust, px4.gust);
+    for (what, built, real) in [
+        ("peak drift speed", b.peak_drift_m_s, p.peak_drift_m_s),
+        (
+            "drift distance",
+            b.peak_displacement_m,
+            p.peak_displacement_m,
+        ),
+    ] {
+        let ratio = built / real;
+        assert!(
+            (0.5..=2.0).contains(&ratio),
+            "gust: the built-in's {what} {built:.2} is {ratio:.2}× PX4's {real:.2} (allowed 0.5–2); {suggestion}"
+        );
+    }
+    let (Some(recovery_b), Some(recovery_p)) = (b.recovery_s, p.recovery_s) else {
+        panic!("gust: the built-in never recovered: {b:?}; {suggestion}");
+    };
+    let ratio = recovery_b / recovery_p;
+    assert!(
+        (0.5..=2.0).contains(&ratio),
+        "gust: the built-in's recovery {recovery_b:.2} s is {ratio:.2}× PX4's {recovery_p:.2} s (allowed 0.5–2); {suggestion}"
+    );
 }
