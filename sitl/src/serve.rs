@@ -47,7 +47,8 @@ use sim::world::World;
 
 use crate::mission::{
     camera_config, camera_gimbal, flight_power_w, hover_power_w, pad_pose, wind_config,
-    AutopilotKind, RealAutopilot, RealVehicle, SimError, WindKind, PHYSICS_DT_S, TICK_S,
+    AutopilotKind, CameraGimbal, GimballedVehicle, RealAutopilot, RealVehicle, SimError, WindKind,
+    PHYSICS_DT_S, TICK_S,
 };
 use crate::px4_sih::SihListener;
 
@@ -248,7 +249,7 @@ enum Flyer {
         touchdown: Option<ServedTouchdown>,
     },
     /// A real autopilot flying the world's rigid body.
-    Real(Box<RealVehicle>),
+    Real(Box<GimballedVehicle>),
 }
 
 /// Serves the world until the vehicle has landed, `max_time_s` passes or `stop` is set;
@@ -306,12 +307,6 @@ pub fn serve(
             "PX4 SIH flies no camera gimbal: set the tracker's camera_mount = \"body\"",
         ));
     }
-    if real.is_some() && gimbal.is_some() {
-        // The real autopilots' telemetry reports no gimbal here.
-        return Err(setup(
-            "the real autopilots fly no camera gimbal here: set the tracker's camera_mount = \"body\"",
-        ));
-    }
     let mut video = open_video(options.video_port, width_px, height_px, rate_fps)?;
 
     let mut flyer = match options.vehicle {
@@ -358,7 +353,11 @@ pub fn serve(
                     .step(&mut world)
                     .map_err(|error| SimError::Link(error.into()))?;
             }
-            Flyer::Real(Box::new(vehicle))
+            // The gimbal reports itself on the vehicle's MAVLink network, as in a mission.
+            let gimbal = gimbal
+                .map(|gimbal| CameraGimbal::for_autopilot(gimbal, real))
+                .transpose()?;
+            Flyer::Real(Box::new(GimballedVehicle::new(vehicle, gimbal)))
         }
     };
 
@@ -479,7 +478,7 @@ pub fn serve(
                 }
             }
             // In lockstep with the autopilot: its steps up to the tick's end.
-            Flyer::Real(real) => real.step_until(&mut world, time_s + TICK_S)?,
+            Flyer::Real(real) => real.step_until(&mut world, time_s + TICK_S, TICK_S)?,
         }
         let touchdown = match &mut flyer {
             Flyer::Simulated {
@@ -495,7 +494,7 @@ pub fn serve(
             }
             Flyer::Px4Sih { touchdown, .. } => *touchdown,
             // The body's real contact with the pad or the ground.
-            Flyer::Real(real) => real.body().touchdown().map(ServedTouchdown::from),
+            Flyer::Real(real) => real.vehicle.body().touchdown().map(ServedTouchdown::from),
         };
         let truth = Truth {
             time_s,
@@ -512,7 +511,7 @@ pub fn serve(
         }
         // The world's own vehicle needs no world to disarm; a real autopilot does.
         let motors_stopped = match &flyer {
-            Flyer::Real(real) => !motors_running(real),
+            Flyer::Real(real) => !motors_running(&real.vehicle),
             Flyer::Simulated { .. } | Flyer::Px4Sih { .. } => true,
         };
         motors_stopped_since_s = if motors_stopped {

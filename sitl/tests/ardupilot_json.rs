@@ -1,13 +1,18 @@
 //! The real ArduPilot (Copter 4.6.3 SITL, `-M JSON:127.0.0.1`: no physics of its own) flying
 //! the world's rigid-body quadrotor over its JSON interface: its EKF3 estimates from the
 //! world's IMU, position and rangefinder, its controllers fly the world's body in the world's
-//! wind, as fast as both sides answer. Skips, saying why, without `../shared/ardupilot-sitl`.
+//! wind, as fast as both sides answer. The camera's gimbal, wired to ArduPilot's SERIAL2,
+//! reaches the ground station on SERIAL0 through ArduPilot's MAVLink routing. Skips, saying
+//! why, without `../shared/ardupilot-sitl`.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use mavlink::dialects::common::{MavCmd, MavMessage, MavModeFlag, MavResult};
+use algorithms::estimation::projection::Attitude;
+use mavlink::dialects::common::{
+    MavAutopilot, MavCmd, MavMessage, MavModeFlag, MavResult, MavType, HEARTBEAT_DATA,
+};
 use mavlink::{MavConnection, MavHeader};
 use nalgebra::Vector3;
 use sim::quadrotor::{Quadrotor, QuadrotorParams};
@@ -17,6 +22,7 @@ use sim::vehicle::Touchdown;
 use sim::wind::{Wind, WindConfig};
 use sim::world::World;
 use sitl::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
+use sitl::hil::gimbal_device::GimbalDevice;
 
 mod common;
 use common::{command_long, shared_dir, start, SitlProcess};
@@ -28,6 +34,12 @@ const GUIDED: f32 = 4.0;
 const LAND: f32 = 9.0;
 /// The world's trace of the true position, every 50 ms of simulated time.
 const TRACE_PERIOD_S: f64 = 0.05;
+
+/// Where the gimbal holds the camera: straight down, rolled 3° and turned to 40°, so that a
+/// quaternion that arrives unchanged is told from a default one.
+fn gimbal_camera() -> Attitude {
+    Attitude::new(3f64.to_radians(), -90f64.to_radians(), 40f64.to_radians())
+}
 
 fn start_ardupilot() -> Option<SitlProcess> {
     let dir = shared_dir("ardupilot-sitl")?;
@@ -102,11 +114,18 @@ fn run_world(json: ArduPilotJson, truth: Arc<Mutex<Truth>>, stop: Arc<AtomicBool
     let body = Quadrotor::on_ground(QuadrotorParams::default(), Vector3::zeros()).unwrap();
     let sensors = Sensors::new(SensorParams::default(), Home::default(), 11);
     let mut vehicle = ArduPilotVehicle::new(json, body, sensors);
+    let serial2 = std::net::SocketAddr::from(([127, 0, 0, 1], 5763 + 10 * u16::from(INSTANCE)));
+    let mut gimbal = GimbalDevice::through_autopilot(serial2, 1);
     let wall = Instant::now();
     let mut next_trace_s = 0.0;
     while !stop.load(Ordering::Relaxed) {
         if let Err(error) = vehicle.step(&mut world) {
             truth.lock().unwrap().error = Some(error.to_string());
+            break;
+        }
+        let time_boot_ms = (vehicle.time_s * 1000.0) as u32;
+        if let Err(error) = gimbal.report(vehicle.time_s, time_boot_ms, &gimbal_camera()) {
+            truth.lock().unwrap().error = Some(format!("gimbal: {error}"));
             break;
         }
         let mut t = truth.lock().unwrap();
@@ -139,6 +158,10 @@ struct Gcs {
     custom_mode: u32,
     /// The last DISTANCE_SENSOR: what ArduPilot read from `rng_1`, m.
     rangefinder_m: Option<f64>,
+    /// GIMBAL_DEVICE_ATTITUDE_STATUS from the vehicle's gimbal (system 1, component 154),
+    /// forwarded by ArduPilot, and the last one's quaternion.
+    gimbal_reports: u32,
+    gimbal_q: Option<[f32; 4]>,
 }
 
 impl Gcs {
@@ -152,7 +175,25 @@ impl Gcs {
             armed: false,
             custom_mode: 0,
             rangefinder_m: None,
+            gimbal_reports: 0,
+            gimbal_q: None,
         }
+    }
+
+    /// A companion computer's heartbeat: ArduPilot routes the vehicle's broadcasts (the
+    /// gimbal's reports among them) only to links it has heard a component on.
+    fn heartbeat(&self) {
+        let heartbeat = MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+            mavtype: MavType::MAV_TYPE_ONBOARD_CONTROLLER,
+            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+            ..Default::default()
+        });
+        let header = MavHeader {
+            system_id: 1,
+            component_id: 191,
+            sequence: 0,
+        };
+        self.link.send(&header, &heartbeat).expect("MAVLink send");
     }
 
     fn command(&self, command: MavCmd, params: [f32; 7]) {
@@ -175,6 +216,7 @@ impl Gcs {
 
     /// Reads what ArduPilot sends for `wall` (the link's reads time out every 100 ms).
     fn pump(&mut self, wall: Duration) {
+        self.heartbeat();
         let until = Instant::now() + wall;
         while Instant::now() < until {
             match self.link.recv() {
@@ -193,6 +235,12 @@ impl Gcs {
                 }
                 Ok((_, MavMessage::DISTANCE_SENSOR(distance))) => {
                     self.rangefinder_m = Some(f64::from(distance.current_distance) / 100.0);
+                }
+                Ok((header, MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(status)))
+                    if header.system_id == 1 && header.component_id == 154 =>
+                {
+                    self.gimbal_reports += 1;
+                    self.gimbal_q = Some(status.q);
                 }
                 Ok(_) => {}
                 Err(_) => {}
@@ -417,4 +465,20 @@ fn ardupilot_takes_off_holds_in_8_m_s_gusts_and_lands_in_our_world() {
         disarmed_at_s - touchdown.time_s
     );
     assert!(!motors_spinning_after_disarm, "motors turning after disarm");
+    // The gimbal's own reports, through ArduPilot, unchanged.
+    let MavMessage::GIMBAL_DEVICE_ATTITUDE_STATUS(sent) =
+        sim::autopilot::gimbal_device_attitude_status(&gimbal_camera(), 0)
+    else {
+        unreachable!()
+    };
+    eprintln!(
+        "{} gimbal reports forwarded from SERIAL2 to SERIAL0",
+        gcs.gimbal_reports
+    );
+    assert!(
+        gcs.gimbal_reports > 100,
+        "{} gimbal reports",
+        gcs.gimbal_reports
+    );
+    assert_eq!(gcs.gimbal_q, Some(sent.q));
 }

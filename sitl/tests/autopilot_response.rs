@@ -27,7 +27,7 @@ use sim::tractor::{PathKind, Tractor, TractorParams};
 use sim::vehicle::{Multirotor, VehicleParams};
 use sim::wind::{Wind, WindConfig};
 use sim::world::World;
-use sitl::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
+use sitl::hil::ardupilot_json::{world_start_args, ArduPilotJson, ArduPilotVehicle};
 use sitl::hil::px4::{Px4Hil, Px4Vehicle};
 
 mod common;
@@ -43,7 +43,6 @@ use figures::{
 /// ArduPilot 9 (MAVLink TCP 5850, JSON UDP 9092; 7 is what `qosrt evaluate` runs were seen on).
 const PX4_INSTANCE: u8 = 9;
 const ARDUPILOT_INSTANCE: u8 = 9;
-const ARDUPILOT_WORLD_ARGS: &str = "-M JSON:127.0.0.1 -s 100 -P FRAME_TYPE=1 -P RNGFND1_TYPE=100 -P BATT_MONITOR=0 -P ANGLE_MAX=4500 -O 47.397742,8.545594,488,0";
 
 /// Above the seed wind's 6 m ground ramp: the gust pushes every vehicle alike.
 const HOVER_ALTITUDE_M: f64 = 8.0;
@@ -386,7 +385,8 @@ fn ardupilot_responses(dir: &Path) -> Responses {
     let backend = ArduPilotJson::bind(ARDUPILOT_INSTANCE).unwrap();
     let instance = ARDUPILOT_INSTANCE.to_string();
     let mut args = vec!["-I", &instance];
-    args.extend(ARDUPILOT_WORLD_ARGS.split_whitespace());
+    let world_args = world_start_args();
+    args.extend(world_args.split_whitespace());
     let _ardupilot = start(dir, &args, &[]);
     let link = Arc::new(
         mavlink::connect::<MavMessage>(&format!(

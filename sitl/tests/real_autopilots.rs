@@ -16,6 +16,7 @@ use runtime::plugins::builtin_registry;
 use runtime::registry::PluginRegistry;
 use sim::outcome::SimOutcome;
 use sim::tractor::PathKind;
+use sitl::hil::ardupilot_json::world_start_args;
 use sitl::mission::{simulate, AutopilotKind, RealAutopilot, SimError, SimOptions};
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -29,30 +30,21 @@ const PX4_INSTANCE: u8 = 8;
 const PX4_MOVING_PAD_PARAMS: &str = "EKF2_RNG_CTRL 0;LNDMC_XY_VEL_MAX 4";
 const ARDUPILOT_INSTANCE: u8 = 5;
 
-/// What ArduPilot must be told to fly the world's vehicle: an X frame like the world's body,
-/// the rangefinder from the JSON's `rng_1`, no battery monitor (its JSON mode models no battery
-/// and would report 0 V), PX4's 45° tilt limit (30° cannot hold 12 m/s gusts), the world's
-/// home, and no pacing of its own (the world sets the pace).
-const ARDUPILOT_WORLD_ARGS: &str = "-M JSON:127.0.0.1 -s 100 -P FRAME_TYPE=1 -P RNGFND1_TYPE=100 -P BATT_MONITOR=0 -P ANGLE_MAX=4500 -O 47.397742,8.545594,488,0";
-
 mod common;
 use common::shared_dir;
 
 static CORES: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-/// The reference mission; with `body_camera`, its camera fixed to the body (ArduPilot's link
-/// carries no gimbal of the world's).
-fn mission(dir: &Path, body_camera: bool) -> (MissionModel, PluginRegistry) {
+/// The reference mission, its camera in a gimbal (which reports itself to PX4's companion
+/// link, or through ArduPilot's routing).
+fn mission(dir: &Path) -> (MissionModel, PluginRegistry) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let mut text = std::fs::read_to_string(root.join("qos.toml")).unwrap();
-    if body_camera {
-        text = text.replace("camera_mount = \"gimbal\"", "camera_mount = \"body\"");
-    }
+    let text = std::fs::read_to_string(root.join("qos.toml")).unwrap();
     let text = text.replace(
         "path = \"profiles/",
         &format!("path = \"{}/profiles/", root.display()),
     );
-    let path = dir.join("body.toml");
+    let path = dir.join("qos.toml");
     std::fs::write(&path, text).unwrap();
     let registry = builtin_registry().unwrap();
     let loaded = load_file(&path, &registry.catalog()).unwrap();
@@ -67,8 +59,7 @@ fn fly(autopilot: RealAutopilot) -> Result<SimOutcome, SimError> {
 /// A mission that needs no cores of its own (one that fails to start).
 fn try_fly(autopilot: RealAutopilot) -> Result<SimOutcome, SimError> {
     let dir = tempfile::tempdir().unwrap();
-    let body_camera = autopilot.kind == AutopilotKind::ArduPilot;
-    let (model, registry) = mission(dir.path(), body_camera);
+    let (model, registry) = mission(dir.path());
     let options = SimOptions {
         path: PathKind::Turn180,
         wind_speed_m_s: 12.0,
@@ -155,8 +146,9 @@ fn the_real_ardupilot_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts()
         kind: AutopilotKind::ArduPilot,
         instance: ARDUPILOT_INSTANCE,
         command: Some(format!(
-            "{} -I {{i}} {ARDUPILOT_WORLD_ARGS}",
-            dir.join("start").display()
+            "{} -I {{i}} {}",
+            dir.join("start").display(),
+            world_start_args()
         )),
         connect_timeout: Duration::from_secs(30),
     })

@@ -26,6 +26,42 @@ pub const MAGIC_16_CHANNELS: u16 = 18458;
 pub const MAGIC_32_CHANNELS: u16 = 29569;
 /// `u16` magic, `u16` frame rate, `u32` frame count, then the PWM values.
 const HEADER_BYTES: usize = 8;
+/// What ArduPilot Copter must be told to fly the world's vehicle through this interface, each
+/// for a reason; its start command takes them as `-P NAME=VALUE` ([`world_start_args`]).
+pub const WORLD_PARAMETERS: &[(&str, &str)] = &[
+    // The world's body is a quad X, whose rotor order the servo channels follow (the bundled
+    // copter.parm flies a "+").
+    ("FRAME_TYPE", "1"),
+    // The world's downward rangefinder (`rng_1`) as rangefinder 1, with the world's sensor's
+    // 0.1–15 m range (ArduPilot's default 7 m maximum loses the pad when following at 7.5 m
+    // leaning into 12 m/s, and the pad-height estimate then misses the steps between pad and
+    // field).
+    ("RNGFND1_TYPE", "100"),
+    ("RNGFND1_MIN_CM", "10"),
+    ("RNGFND1_MAX_CM", "1500"),
+    // No battery monitor: the JSON interface models no battery and would report 0 V.
+    ("BATT_MONITOR", "0"),
+    // PX4's 45° tilt limit: at 30° it cannot hold 12 m/s gusts and drifts off downwind.
+    ("ANGLE_MAX", "4500"),
+];
+
+/// The arguments that start ArduPilot Copter's SITL as the world's autopilot (after `-I N`):
+/// this interface, no pacing of its own (the world sets the pace), [`WORLD_PARAMETERS`] and
+/// the world's home.
+pub fn world_start_args() -> String {
+    let home = sim::sensors::Home::default();
+    let mut args = String::from("-M JSON:127.0.0.1 -s 100");
+    for (name, value) in WORLD_PARAMETERS {
+        let _ = write!(args, " -P {name}={value}");
+    }
+    let _ = write!(
+        args,
+        " -O {},{},{},0",
+        home.latitude_deg, home.longitude_deg, home.altitude_m
+    );
+    args
+}
+
 /// What `rng_1` says when the rangefinder has no return: beyond any LiDAR's maximum, which
 /// ArduPilot reads as "out of range high", as a real LiDAR's no-return. (A NaN would read as
 /// "no data", a sensor fault that fails its pre-arm check.)

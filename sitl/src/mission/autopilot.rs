@@ -294,43 +294,101 @@ pub(super) enum Flyer {
         estimate: Box<EstimatedTelemetry>,
     },
     /// A real autopilot, and the camera's gimbal reporting itself where the mission has one.
-    Real {
-        vehicle: Box<RealVehicle>,
-        gimbal: Option<CameraGimbal>,
-    },
+    Real(Box<GimballedVehicle>),
+}
+
+/// A real autopilot's vehicle in the world, and its camera's gimbal where the mission has one:
+/// the mission harness and the served world fly it alike.
+pub(crate) struct GimballedVehicle {
+    pub(crate) vehicle: RealVehicle,
+    gimbal: Option<CameraGimbal>,
+}
+
+impl GimballedVehicle {
+    pub(crate) fn new(vehicle: RealVehicle, gimbal: Option<CameraGimbal>) -> Self {
+        Self { vehicle, gimbal }
+    }
+
+    /// Steps the world with the autopilot until `until_s`, then the gimbal over that tick of
+    /// `tick_s` on the body's new attitude.
+    pub(crate) fn step_until(
+        &mut self,
+        world: &mut World,
+        until_s: f64,
+        tick_s: f64,
+    ) -> Result<(), SimError> {
+        self.vehicle.step_until(world, until_s)?;
+        if let Some(gimbal) = &mut self.gimbal {
+            gimbal
+                .step(tick_s, until_s, &self.vehicle.body().state().euler())
+                .map_err(link_error)?;
+        }
+        Ok(())
+    }
+
+    /// Where the camera is: the gimbal's pose where it hangs in one, else the body's.
+    pub(crate) fn camera_pose(&self) -> VehiclePose {
+        let body = self.vehicle.camera_pose();
+        self.gimbal
+            .as_ref()
+            .map_or(body, |gimbal| gimbal.camera_pose(&body))
+    }
 }
 
 /// The camera's stabilising gimbal on a vehicle a real autopilot flies: the world moves it
-/// with the body, and it reports itself to the companion computer as a MAVLink gimbal device.
-pub(super) struct CameraGimbal {
+/// with the body, and it reports itself on the vehicle's MAVLink network as a gimbal device.
+pub(crate) struct CameraGimbal {
     gimbal: Gimbal,
     device: GimbalDevice,
+    autopilot: AutopilotKind,
 }
 
+/// ArduPilot's system id (`SYSID_THISMAV` 1).
+const ARDUPILOT_SYSTEM_ID: u8 = 1;
+
 impl CameraGimbal {
-    /// PX4's companion link is UDP: the gimbal device reports there too. ArduPilot's is TCP to
-    /// ArduPilot itself, where a gimbal speaks through ArduPilot's own mount driver: not here.
-    pub(super) fn for_autopilot(
+    /// PX4's companion link is UDP: the gimbal device reports there itself. ArduPilot's is
+    /// TCP to ArduPilot: the gimbal is wired to ArduPilot's SERIAL2 (TCP 5763+10i), whose
+    /// MAVLink routing forwards the reports to the companion.
+    pub(crate) fn for_autopilot(
         gimbal: Gimbal,
         autopilot: &RealAutopilot,
     ) -> Result<Self, SimError> {
-        if autopilot.kind != AutopilotKind::Px4 {
-            return Err(SimError::Setup(
-                "the camera gimbal reports itself on PX4's UDP link only; with ArduPilot set the tracker's camera_mount = \"body\"".into(),
-            ));
-        }
-        let companion =
-            std::net::SocketAddr::from(([127, 0, 0, 1], 14540 + u16::from(autopilot.instance)));
-        // PX4 instance i is MAVLink system i + 1.
-        let device = GimbalDevice::new(companion, autopilot.instance + 1).map_err(link_error)?;
-        Ok(Self { gimbal, device })
+        let device = match autopilot.kind {
+            AutopilotKind::Px4 | AutopilotKind::Builtin => {
+                let companion = std::net::SocketAddr::from((
+                    [127, 0, 0, 1],
+                    14540 + u16::from(autopilot.instance),
+                ));
+                // PX4 instance i is MAVLink system i + 1.
+                GimbalDevice::new(companion, autopilot.instance + 1).map_err(link_error)?
+            }
+            AutopilotKind::ArduPilot => {
+                let serial2 = std::net::SocketAddr::from((
+                    [127, 0, 0, 1],
+                    5763 + 10 * u16::from(autopilot.instance),
+                ));
+                GimbalDevice::through_autopilot(serial2, ARDUPILOT_SYSTEM_ID)
+            }
+        };
+        Ok(Self {
+            gimbal,
+            device,
+            autopilot: autopilot.kind,
+        })
     }
 
     /// Moves the gimbal by `dt_s` on the body's attitude and reports it at `time_s`.
-    pub(super) fn step(&mut self, dt_s: f64, time_s: f64, body: &Attitude) -> std::io::Result<()> {
+    fn step(&mut self, dt_s: f64, time_s: f64, body: &Attitude) -> std::io::Result<()> {
         self.gimbal.step(dt_s, body);
-        // On PX4's clock, as its own messages are stamped.
-        let time_boot_ms = (crate::hil::px4::time_usec(time_s) / 1000) as u32;
+        // On the autopilot's clock, as its own messages are stamped: PX4's HIL time, or
+        // ArduPilot's, which is the JSON answers' timestamp, the world's time.
+        let time_boot_ms = match self.autopilot {
+            AutopilotKind::ArduPilot => (time_s * 1000.0) as u32,
+            AutopilotKind::Px4 | AutopilotKind::Builtin => {
+                (crate::hil::px4::time_usec(time_s) / 1000) as u32
+            }
+        };
         self.device
             .report(time_s, time_boot_ms, &self.gimbal.camera_attitude(body))
     }
@@ -344,19 +402,14 @@ impl Flyer {
     pub(super) fn camera_pose(&self) -> VehiclePose {
         match self {
             Self::Builtin { vehicle, .. } => vehicle.camera_pose(),
-            Self::Real { vehicle, gimbal } => {
-                let body = vehicle.camera_pose();
-                gimbal
-                    .as_ref()
-                    .map_or(body, |gimbal| gimbal.camera_pose(&body))
-            }
+            Self::Real(real) => real.camera_pose(),
         }
     }
 
     pub(super) fn position_ned_m(&self) -> nalgebra::Vector3<f64> {
         match self {
             Self::Builtin { vehicle, .. } => vehicle.position_ned_m(),
-            Self::Real { vehicle, .. } => vehicle.body().position_ned_m(),
+            Self::Real(real) => real.vehicle.body().position_ned_m(),
         }
     }
 
@@ -373,7 +426,7 @@ impl Flyer {
     fn touchdowns(&self) -> &[Touchdown] {
         match self {
             Self::Builtin { vehicle, .. } => vehicle.touchdowns(),
-            Self::Real { vehicle, .. } => vehicle.body().touchdowns(),
+            Self::Real(real) => real.vehicle.body().touchdowns(),
         }
     }
 
@@ -387,9 +440,7 @@ impl Flyer {
             Self::Builtin { vehicle, .. } => {
                 super::flight_power_w(vehicle.as_ref(), wind, rotors, time_s)
             }
-            Self::Real { vehicle, .. } => {
-                super::flight_power_w(vehicle.body(), wind, rotors, time_s)
-            }
+            Self::Real(real) => super::flight_power_w(real.vehicle.body(), wind, rotors, time_s),
         }
     }
 }

@@ -50,10 +50,11 @@ mod autopilot;
 mod options;
 mod world;
 
+use autopilot::Flyer;
 pub use autopilot::{
     AutopilotKind, AutopilotProcess, RealAutopilot, RealVehicle, REAL_AUTOPILOT_READY_S,
 };
-use autopilot::{CameraGimbal, Flyer};
+pub(crate) use autopilot::{CameraGimbal, GimballedVehicle};
 pub use options::*;
 pub use world::*;
 
@@ -213,10 +214,7 @@ pub fn simulate(
                 .transpose()?;
             let (vehicle, process) = RealVehicle::connect(real, options.seed)?;
             let link = real.open_link(process.as_ref())?;
-            let flyer = Flyer::Real {
-                vehicle: Box::new(vehicle),
-                gimbal,
-            };
+            let flyer = Flyer::Real(Box::new(GimballedVehicle::new(vehicle, gimbal)));
             (flyer, link, process)
         }
     };
@@ -449,7 +447,7 @@ pub fn simulate(
                 let t_ns = autopilot.publish(&snapshot).map_err(link_error)?;
                 (!options.real_time).then_some(t_ns)
             }
-            Flyer::Real { .. } => None,
+            Flyer::Real(_) => None,
         };
         let step = runner
             .step(runtime_now_s, lockstep)
@@ -555,14 +553,7 @@ pub fn simulate(
                         .map_err(setup)?;
                 }
             }
-            Flyer::Real { vehicle, gimbal } => {
-                vehicle.step_until(&mut world, time_s + TICK_S)?;
-                if let Some(gimbal) = gimbal {
-                    gimbal
-                        .step(TICK_S, time_s + TICK_S, &vehicle.body().state().euler())
-                        .map_err(link_error)?;
-                }
-            }
+            Flyer::Real(real) => real.step_until(&mut world, time_s + TICK_S, TICK_S)?,
         }
         let flight_w = flyer.flight_power_w(&mut world.wind, &rotors, time_s);
         // The companion draws what the tasks of the phase in flight cost at their levels.

@@ -549,3 +549,26 @@ fn the_vehicle_steps_the_world_once_per_new_frame_and_answers_a_resend_without_s
     assert!((vehicle.time_s - expected_s).abs() < 1e-15);
     assert_eq!((vehicle.frames, vehicle.resends), (3, 1));
 }
+
+#[test]
+fn the_start_arguments_carry_the_world_s_home_and_each_parameter_once() {
+    let args = world_start_args();
+    // PX4 SITL's default home (PX4_HOME_LAT/LON/ALT), where the world's sensors are.
+    assert!(args.ends_with(" -O 47.397742,8.545594,488,0"), "{args}");
+    assert!(args.starts_with("-M JSON:127.0.0.1 -s 100 "), "{args}");
+    let words: Vec<&str> = args.split_whitespace().collect();
+    let settings: Vec<&str> = words
+        .windows(2)
+        .filter(|pair| pair[0] == "-P")
+        .map(|pair| pair[1])
+        .collect();
+    assert_eq!(settings.len(), WORLD_PARAMETERS.len(), "{args}");
+    for (name, value) in WORLD_PARAMETERS {
+        let setting = format!("{name}={value}");
+        assert_eq!(
+            settings.iter().filter(|s| **s == setting).count(),
+            1,
+            "{setting} in {args}"
+        );
+    }
+}
