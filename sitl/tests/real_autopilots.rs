@@ -5,10 +5,11 @@
 //! `../shared`. Flights that need the cores run one at a time.
 //!
 //! Both assert the flight (armed, offboard or guided, followed the pad closely, reached the
-//! landing phase). PX4's also asserts the landing: on the pad within 0.2 m at no more than
-//! 1 m/s (it lands in every run of the evaluation's cell, the README has the figures).
-//! ArduPilot's lands on the pad in only part of the runs, so a pass or fail of one of its
-//! landings would be a coin toss, not a test.
+//! landing phase) and the landing: on the pad at no more than 1 m/s, PX4 within 0.2 m of its
+//! centre. PX4 flies the reference mission, ArduPilot `configs/ardupilot.toml` (its close-in
+//! landing set for GUIDED) with its GUIDED set as `VISION_LANDING_PARAMETERS` says. ArduPilot's
+//! lockstep is not repeatable to the millisecond: the same seed came down 0.16 and 0.21 m from
+//! the centre in two runs, so its bound is the pad's (0.35 m, the evaluation has its p95).
 
 use runtime::config::load_file;
 use runtime::energy::{load_mission_model, MissionModel};
@@ -35,17 +36,12 @@ use common::shared_dir;
 
 static CORES: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-/// The reference mission, its camera in a gimbal (which reports itself to PX4's companion
-/// link, or through ArduPilot's routing).
-fn mission(dir: &Path) -> (MissionModel, PluginRegistry) {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let text = std::fs::read_to_string(root.join("qos.toml")).unwrap();
-    let text = text.replace(
-        "path = \"profiles/",
-        &format!("path = \"{}/profiles/", root.display()),
-    );
-    let path = dir.join("qos.toml");
-    std::fs::write(&path, text).unwrap();
+/// The mission `config` (relative to the repository), its camera in a gimbal (which reports
+/// itself to PX4's companion link, or through ArduPilot's routing).
+fn mission(config: &str) -> (MissionModel, PluginRegistry) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join(config);
     let registry = builtin_registry().unwrap();
     let loaded = load_file(&path, &registry.catalog()).unwrap();
     (load_mission_model(&loaded).unwrap(), registry)
@@ -58,8 +54,11 @@ fn fly(autopilot: RealAutopilot) -> Result<SimOutcome, SimError> {
 
 /// A mission that needs no cores of its own (one that fails to start).
 fn try_fly(autopilot: RealAutopilot) -> Result<SimOutcome, SimError> {
-    let dir = tempfile::tempdir().unwrap();
-    let (model, registry) = mission(dir.path());
+    let config = match autopilot.kind {
+        AutopilotKind::ArduPilot => "configs/ardupilot.toml",
+        _ => "qos.toml",
+    };
+    let (model, registry) = mission(config);
     let options = SimOptions {
         path: PathKind::Turn180,
         wind_speed_m_s: 12.0,
@@ -127,18 +126,26 @@ fn the_real_px4_lands_on_the_turning_tractor_in_12_m_s_gusts() {
     })
     .unwrap();
     assert_flew_the_mission("PX4", &outcome, "offboard engaged");
-    assert!(outcome.landed_on_pad, "PX4 missed the pad: {outcome:?}");
+    assert_landed_on_the_pad("PX4", &outcome, 0.2);
+}
+
+/// On the pad, within `max_error_m` of its centre, at no more than 1 m/s down.
+fn assert_landed_on_the_pad(autopilot: &str, outcome: &SimOutcome, max_error_m: f64) {
+    assert!(
+        outcome.landed_on_pad,
+        "{autopilot} missed the pad: {outcome:?}"
+    );
     let error_m = outcome.touchdown_error_m.unwrap();
     let down_m_s = outcome.touchdown_vertical_speed_m_s.unwrap();
     assert!(
-        error_m <= 0.2,
-        "PX4 touched down {error_m} m off the pad's centre"
+        error_m <= max_error_m,
+        "{autopilot} touched down {error_m} m off the pad's centre"
     );
-    assert!(down_m_s <= 1.0, "PX4 met the pad at {down_m_s} m/s");
+    assert!(down_m_s <= 1.0, "{autopilot} met the pad at {down_m_s} m/s");
 }
 
 #[test]
-fn the_real_ardupilot_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts() {
+fn the_real_ardupilot_lands_on_the_turning_tractor_in_12_m_s_gusts() {
     let Some(dir) = shared_dir("ardupilot-sitl") else {
         return;
     };
@@ -154,6 +161,7 @@ fn the_real_ardupilot_flies_the_mission_on_the_turning_tractor_in_12_m_s_gusts()
     })
     .unwrap();
     assert_flew_the_mission("ArduPilot", &outcome, "offboard engaged");
+    assert_landed_on_the_pad("ArduPilot", &outcome, 0.35);
 }
 
 #[test]

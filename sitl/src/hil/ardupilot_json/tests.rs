@@ -562,8 +562,12 @@ fn the_start_arguments_carry_the_world_s_home_and_each_parameter_once() {
         .filter(|pair| pair[0] == "-P")
         .map(|pair| pair[1])
         .collect();
-    assert_eq!(settings.len(), WORLD_PARAMETERS.len(), "{args}");
-    for (name, value) in WORLD_PARAMETERS {
+    let all: Vec<&(&str, &str)> = WORLD_PARAMETERS
+        .iter()
+        .chain(VISION_LANDING_PARAMETERS)
+        .collect();
+    assert_eq!(settings.len(), all.len(), "{args}");
+    for (name, value) in all {
         let setting = format!("{name}={value}");
         assert_eq!(
             settings.iter().filter(|s| **s == setting).count(),
