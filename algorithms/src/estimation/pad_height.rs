@@ -269,7 +269,11 @@ mod tests {
             };
             let reading_m = altitude_up_m - surface_up_m;
             let surface = estimator.update(1.0 + 0.1 * tick as f64, reading_m, altitude_up_m);
-            assert_eq!(surface, Some(expected), "reading {tick}: {surface_up_m} m up");
+            assert_eq!(
+                surface,
+                Some(expected),
+                "reading {tick}: {surface_up_m} m up"
+            );
             if tick < 3 {
                 continue; // the pad not yet seen: the height is above the field
             }
@@ -314,12 +318,19 @@ mod tests {
             let reading_m = range_m + (0.03 + 0.01 * range_m) * gaussian();
             let altitude_up_m = true_up_m + 0.02 * gaussian();
             let surface = estimator.update(time_s, reading_m, altitude_up_m);
-            let expected = if on_pad { Surface::Pad } else { Surface::Ground };
+            let expected = if on_pad {
+                Surface::Pad
+            } else {
+                Surface::Ground
+            };
             if surface != Some(expected) {
                 wrong += 1;
             }
         }
-        assert!(wrong <= 2, "{wrong} readings of 5000 put on the wrong surface");
+        assert!(
+            wrong <= 2,
+            "{wrong} readings of 5000 put on the wrong surface"
+        );
         let learned_m = estimator.pad_above_ground_m().unwrap();
         assert!((learned_m - pad_m).abs() < 0.05, "pad {learned_m} m");
     }
