@@ -92,6 +92,16 @@ fn table(report: &DryRunReport) -> String {
             if *in_phase { "" } else { " (not in this phase)" }
         );
     }
+    let latency = &report.frame_to_setpoint;
+    if latency.count > 0 {
+        out += &format!(
+            "\nframe to setpoint (the scheduler and the tasks, on the bus): p50 {:.2} ms, p99 {:.2} ms, max {:.2} ms over {} frames\n",
+            latency.p50_us * 1e-3,
+            latency.p99_us * 1e-3,
+            latency.max_us * 1e-3,
+            latency.count
+        );
+    }
     if report.governor_events.is_empty() {
         out += "\ngovernor: kept the planned levels\n";
     } else {

@@ -495,6 +495,18 @@ pub fn report(outcome: &SimOutcome) -> String {
             outcome.hazards_total
         ),
     };
+    if let Some([p50, p99, max]) = outcome.capture_to_setpoint_ms {
+        out += &format!(
+            "  capture → setpoint   p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms (frame capture to the setpoint answering it, {} fixes)\n",
+            outcome.capture_to_setpoint_fixes
+        );
+    }
+    if let Some([p50, p99, max]) = outcome.delivered_to_setpoint_ms {
+        out += &format!(
+            "  arrival → setpoint   p50 {p50:.1} ms, p99 {p99:.1} ms, max {max:.1} ms (the runtime's own share; the camera delivers on the loop's {:.0} ms tick)\n",
+            sitl::mission::TICK_S * 1e3
+        );
+    }
     out += &format!("  simulated            {:.1}× real time\n", outcome.speedup);
     for skipped in &outcome.skipped_tasks {
         out += &format!("  not flown            task {skipped}\n");

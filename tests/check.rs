@@ -74,6 +74,39 @@ const fn at_start(message: &'static str) -> Expect {
 
 const BAD_CASES: &[BadCase] = &[
     BadCase {
+        name: "trigger on an input the task does not read",
+        replace: &[(
+            "trigger = \"input:vision/landing_marker\"",
+            "trigger = \"input:vision/landing_markers\"",
+        )],
+        expect: &[at(
+            "\"input:vision/landing_markers\"",
+            0,
+            "task `tracking` is triggered by `vision/landing_markers`, which it does not read; did you mean `vision/landing_marker`?; its inputs: vehicle/state, vision/landing_marker",
+        )],
+    },
+    BadCase {
+        name: "trigger that is neither period nor input",
+        replace: &[("trigger = \"input:camera/frame\"", "trigger = \"frame\"")],
+        expect: &[at(
+            "\"frame\"",
+            0,
+            "trigger `frame`: expected `period` or `input:TOPIC`",
+        )],
+    },
+    BadCase {
+        name: "idle time on a periodic task",
+        replace: &[(
+            "trigger = \"input:tracking/relative_state\"",
+            "trigger = \"period\"",
+        )],
+        expect: &[at(
+            "50.0              # ...and on its own",
+            0,
+            "task `landing` runs on its period; `max_idle_ms` only applies with `trigger = \"input:TOPIC\"`",
+        )],
+    },
+    BadCase {
         name: "misspelt key",
         replace: &[("name = \"tractor-landing\"", "naem = \"tractor-landing\"")],
         expect: &[at("naem", 0, "unknown key `naem` in [mission]; did you mean `name`?")],

@@ -101,6 +101,18 @@ fn the_reference_mission_dry_runs_all_four_tasks() {
         assert!(activations >= 1, "{row}");
         assert_eq!(fields[7], "0", "failures: {row}");
     }
+    // The rendered pad gave fixes, and the landing chain turned them into setpoints.
+    let latency = stdout
+        .lines()
+        .find(|l| l.starts_with("frame to setpoint"))
+        .unwrap_or_else(|| panic!("no frame-to-setpoint line:\n{stdout}"));
+    let frames: u64 = latency
+        .split_whitespace()
+        .rev()
+        .nth(1)
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{latency}"));
+    assert!(frames >= 10, "{latency}");
 }
 
 #[test]

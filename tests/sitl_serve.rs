@@ -151,6 +151,19 @@ fn assert_flew_by_vision(run: &Value, stderr: &str) {
         latency["p50_us"].as_f64().unwrap() * 1e-3,
         latency["p99_us"].as_f64().unwrap() * 1e-3
     );
+    // Each of those fixes' frames is known from its arrival too: the runtime's own share.
+    let delivered = &run["delivered_to_setpoint"];
+    assert!(delivered["count"].as_u64().unwrap() > 20, "{delivered}");
+    assert!(
+        delivered["p50_us"].as_f64().unwrap() <= latency["p50_us"].as_f64().unwrap(),
+        "{delivered} {latency}"
+    );
+    eprintln!(
+        "frame arrival to setpoint: {:.1} ms median, {:.1} ms p99, {:.1} ms max",
+        delivered["p50_us"].as_f64().unwrap() * 1e-3,
+        delivered["p99_us"].as_f64().unwrap() * 1e-3,
+        delivered["max_us"].as_f64().unwrap() * 1e-3
+    );
 }
 
 #[cfg(feature = "gstreamer")]

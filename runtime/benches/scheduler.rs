@@ -62,6 +62,8 @@ fn khz_task(index: usize) -> TaskConfig {
         utility: vec![1.0],
         restart: None,
         params: toml::Table::new(),
+        trigger: Default::default(),
+        max_idle_ms: None,
         config_dir: None,
     }
 }

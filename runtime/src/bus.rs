@@ -23,6 +23,9 @@ use std::marker::PhantomData;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, OnceLock, PoisonError};
 
+mod activity;
+pub use activity::TopicActivity;
+
 /// A topic's name and message type, declared once: a publisher and a subscriber made from the
 /// same constant cannot disagree on the type, and a plugin's ports name it
 /// ([`crate::catalog::Port`]).
@@ -207,6 +210,9 @@ struct TopicEntry {
 #[derive(Clone, Default)]
 pub struct Bus {
     topics: Arc<Mutex<BTreeMap<String, TopicEntry>>>,
+    /// Each topic's activity by name, kept apart from the typed slots so that a task can be
+    /// triggered by a topic before (and whatever) its message type is known.
+    activities: Arc<Mutex<BTreeMap<String, Arc<TopicActivity>>>>,
 }
 
 impl fmt::Debug for Bus {
@@ -307,14 +313,27 @@ impl Bus {
             .collect()
     }
 
+    /// The activity of the topic `topic` (created on first use, by either side): what an
+    /// input-triggered task watches.
+    pub fn activity(&self, topic: &str) -> Result<Arc<TopicActivity>, BusError> {
+        if topic.is_empty() {
+            return Err(BusError::EmptyTopicName);
+        }
+        Ok(lock(&self.activities)
+            .entry(topic.to_string())
+            .or_default()
+            .clone())
+    }
+
     fn latest_slot<T: Send + Sync + 'static>(
         &self,
         topic: &str,
     ) -> Result<Arc<LatestSlot<T>>, BusError> {
+        let activity = self.activity(topic)?;
         let entry = self.entry::<T>(topic, TopicKind::Latest, None, || {
             let slot = Arc::new(LatestSlot::<T> {
                 message: Mutex::new(None),
-                published: AtomicU64::new(0),
+                activity: activity.clone(),
                 tap: OnceLock::new(),
             });
             (slot.clone(), slot)
@@ -332,11 +351,12 @@ impl Bus {
                 topic: topic.to_string(),
             });
         }
+        let activity = self.activity(topic)?;
         let entry = self.entry::<T>(topic, TopicKind::Queue, Some(spec), || {
             let slot = Arc::new(QueueSlot::<T> {
                 spec,
                 messages: Mutex::new(VecDeque::with_capacity(spec.capacity)),
-                published: AtomicU64::new(0),
+                activity: activity.clone(),
                 dropped: AtomicU64::new(0),
                 rejected: AtomicU64::new(0),
                 receiver_taken: AtomicBool::new(false),
@@ -417,13 +437,13 @@ pub type Tap<T> = Box<dyn Fn(&Arc<Message<T>>) + Send + Sync>;
 
 struct LatestSlot<T> {
     message: Mutex<Option<Arc<Message<T>>>>,
-    published: AtomicU64,
+    activity: Arc<TopicActivity>,
     tap: OnceLock<Tap<T>>,
 }
 
 impl<T: Send + Sync> TopicCounters for LatestSlot<T> {
     fn counters(&self) -> (u64, u64, u64, usize) {
-        (self.published.load(Ordering::Acquire), 0, 0, 0)
+        (self.activity.published(), 0, 0, 0)
     }
 }
 
@@ -453,12 +473,14 @@ impl<T> Publisher<T> {
     pub fn publish(&self, stamp: Timestamp, value: T) -> u64 {
         let mut slot = lock(&self.slot.message);
         // Numbered under the lock so the slot's sequence numbers only grow.
-        let seq = self.slot.published.fetch_add(1, Ordering::AcqRel) + 1;
+        let seq = self.slot.activity.count();
         let message = Arc::new(Message { stamp, seq, value });
         if let Some(tap) = self.slot.tap.get() {
             tap(&message);
         }
         *slot = Some(message);
+        drop(slot);
+        self.slot.activity.wake();
         seq
     }
 }
@@ -481,7 +503,7 @@ impl<T> fmt::Debug for Subscriber<T> {
 impl<T> Subscriber<T> {
     /// Whether a message newer than the last one this subscriber read is on the topic.
     pub fn updated(&self) -> bool {
-        self.slot.published.load(Ordering::Acquire) > self.seen_seq
+        self.slot.activity.published() > self.seen_seq
     }
 
     /// The newest message, new or not, marking it seen.
@@ -515,7 +537,7 @@ impl<T> Subscriber<T> {
 struct QueueSlot<T> {
     spec: QueueSpec,
     messages: Mutex<VecDeque<Message<T>>>,
-    published: AtomicU64,
+    activity: Arc<TopicActivity>,
     dropped: AtomicU64,
     rejected: AtomicU64,
     receiver_taken: AtomicBool,
@@ -524,7 +546,7 @@ struct QueueSlot<T> {
 impl<T: Send> TopicCounters for QueueSlot<T> {
     fn counters(&self) -> (u64, u64, u64, usize) {
         (
-            self.published.load(Ordering::Acquire),
+            self.activity.published(),
             self.dropped.load(Ordering::Acquire),
             self.rejected.load(Ordering::Acquire),
             lock(&self.messages).len(),
@@ -558,7 +580,7 @@ impl<T> QueueSender<T> {
     /// Queues `value` stamped `stamp`, applying the overflow policy when full.
     pub fn send(&self, stamp: Timestamp, value: T) -> Result<Sent, QueueFull<T>> {
         let mut messages = lock(&self.queue.messages);
-        let seq = self.queue.published.fetch_add(1, Ordering::AcqRel) + 1;
+        let seq = self.queue.activity.count();
         let mut sent = Sent::Queued;
         if messages.len() >= self.queue.spec.capacity {
             match self.queue.spec.overflow {
@@ -574,6 +596,8 @@ impl<T> QueueSender<T> {
             }
         }
         messages.push_back(Message { stamp, seq, value });
+        drop(messages);
+        self.queue.activity.wake();
         Ok(sent)
     }
 

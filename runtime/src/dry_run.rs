@@ -10,8 +10,11 @@ use crate::energy::MissionModel;
 use crate::link::{LinkConfig, LinkError, MavlinkLink};
 use crate::mission::{MissionPlan, MissionRunner, RunnerError, RunnerOptions};
 use crate::registry::PluginRegistry;
-use crate::scheduler::{RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats};
-use crate::topics::{CameraFrame, VehicleState};
+use crate::scheduler::stats::Histogram;
+use crate::scheduler::{
+    DurationSummary, RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats,
+};
+use crate::topics::{CameraFrame, VehicleState, LANDING_SETPOINT, RELATIVE_STATE};
 use algorithms::camera::{CameraError, CameraPose, PinholeCamera};
 use algorithms::estimation::camera_mount;
 use algorithms::estimation::projection::Attitude;
@@ -28,6 +31,7 @@ use nalgebra::Vector3;
 use power_models::battery::BatteryError;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::Arc;
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 #[derive(Debug, thiserror::Error)]
@@ -70,6 +74,38 @@ pub struct DryRunReport {
     /// The governor's decisions, described.
     pub governor_events: Vec<String>,
     pub wall_s: f64,
+    /// From a frame's publication to the first landing setpoint computed from its fix (the
+    /// relative state carrying that fix, then the guidance's step after it), on the bus: what
+    /// the scheduler and the tasks add. Empty when no fix reached a setpoint.
+    pub frame_to_setpoint: DurationSummary,
+}
+
+/// Relative states (stamp, fix capture) and setpoints (stamp) as published, in order.
+#[derive(Default)]
+struct ChainLog {
+    relative: Vec<(f64, Option<f64>)>,
+    setpoints: Vec<f64>,
+}
+
+impl ChainLog {
+    /// For each frame (its stamp), the delay to the first setpoint stamped at or after the
+    /// first relative state carrying its fix.
+    fn frame_to_setpoint(&self, frame_stamps_s: &[f64]) -> DurationSummary {
+        let mut histogram = Histogram::default();
+        for &frame_s in frame_stamps_s {
+            let answered = self
+                .relative
+                .iter()
+                .find(|(_, fix_s)| fix_s.is_some_and(|f| (f - frame_s).abs() < 1e-6))
+                .and_then(|&(relative_s, _)| {
+                    self.setpoints.iter().find(|&&s| s >= relative_s).copied()
+                });
+            if let Some(setpoint_s) = answered {
+                histogram.record(((setpoint_s - frame_s).max(0.0) * 1e9) as u64);
+            }
+        }
+        histogram.summary()
+    }
 }
 
 pub(crate) const FRAME_PERIOD: Duration = Duration::from_millis(100);
@@ -107,6 +143,29 @@ pub fn dry_run(
     let scheduler = SchedulerBuilder::new(registry)
         .tasks(&config.tasks)
         .build_real_time(RealTimeOptions::default())?;
+    let chain = Arc::new(Mutex::new(ChainLog::default()));
+    let bus = scheduler.bus();
+    let log = chain.clone();
+    bus.tap(
+        RELATIVE_STATE,
+        Box::new(move |m| {
+            crate::scheduler::lock(&log)
+                .relative
+                .push((m.stamp.as_secs_f64(), m.value.last_fix_time_s))
+        }),
+    )
+    .map_err(RunnerError::from)?;
+    let log = chain.clone();
+    bus.tap(
+        LANDING_SETPOINT,
+        Box::new(move |m| {
+            crate::scheduler::lock(&log)
+                .setpoints
+                .push(m.stamp.as_secs_f64())
+        }),
+    )
+    .map_err(RunnerError::from)?;
+    let mut frame_stamps_s = Vec::new();
     let link = MavlinkLink::bind_local_ephemeral(LinkConfig::default())?;
     let runtime_addr = link.local_addr().ok_or(DryRunError::NoLinkAddress)?;
     let mut vehicle = SyntheticVehicle::new(runtime_addr)?;
@@ -140,7 +199,10 @@ pub fn dry_run(
                     image,
                 },
                 capture_time_s: now_s,
+                arrived_s: now_s,
             });
+            // Published at its capture, as the runner stamps it.
+            frame_stamps_s.push(crate::clock::Timestamp::from_secs_f64(now_s).as_secs_f64());
             frame_index += 1;
             next_frame += FRAME_PERIOD;
         }
@@ -176,6 +238,7 @@ pub fn dry_run(
         })
         .collect();
     let log = runner.log();
+    let frame_to_setpoint = crate::scheduler::lock(&chain).frame_to_setpoint(&frame_stamps_s);
     Ok(DryRunReport {
         phase: phase_name,
         tasks,
@@ -183,6 +246,7 @@ pub fn dry_run(
         telemetry_samples: log.battery.samples,
         governor_events: log.governor.iter().map(|d| d.description.clone()).collect(),
         wall_s,
+        frame_to_setpoint,
     })
 }
 
@@ -325,4 +389,25 @@ pub(crate) fn synthetic_frames() -> Result<Vec<Arc<GrayImage>>, DryRunError> {
                 .map_err(DryRunError::Render)
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_frame_is_answered_by_the_first_setpoint_after_the_state_that_carries_its_fix() {
+        let chain = ChainLog {
+            // The tracker publishes at 0.105 s still on the old fix, at 0.112 s on frame 0.1's.
+            relative: vec![(0.105, Some(0.0)), (0.112, Some(0.1)), (0.132, Some(0.1))],
+            setpoints: vec![0.106, 0.110, 0.113, 0.133],
+        };
+        let latency = chain.frame_to_setpoint(&[0.1, 0.2]);
+        // Frame 0.2 gave no fix: not counted.
+        assert_eq!(latency.count, 1);
+        assert!(
+            (latency.p50_us - 13_000.0).abs() < 13_000.0 * 0.016,
+            "{latency:?}"
+        );
+    }
 }

@@ -495,6 +495,8 @@ mod tests {
             levels,
             restart: None,
             params: toml::Table::new(),
+            trigger: Default::default(),
+            max_idle_ms: None,
             config_dir: None,
         }
     }

@@ -79,6 +79,14 @@ pub struct SimOutcome {
     /// Wall time of one turn of the runtime's loop (the tasks run inside it in lockstep), µs.
     pub loop_step_p50_us: f64,
     pub loop_step_p99_us: f64,
+    /// From a frame's capture to the first velocity setpoint that answered its fix (camera
+    /// delivery and the runtime's own delay), ms: p50, p99, max, and over how many fixes;
+    /// `None` when none answered one.
+    pub capture_to_setpoint_ms: Option<[f64; 3]>,
+    pub capture_to_setpoint_fixes: u64,
+    /// From the frame's arrival at the runtime to that setpoint (the runtime's own share),
+    /// ms: p50, p99, max.
+    pub delivered_to_setpoint_ms: Option<[f64; 3]>,
     /// Every change of the tasks' levels (with `record_track`).
     #[serde(skip)]
     pub qos_track: Vec<QosSample>,

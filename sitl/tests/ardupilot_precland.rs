@@ -145,6 +145,7 @@ fn ardupilot_precision_landing_follows_the_trackers_landing_target() {
                         image: frame.image,
                     },
                     capture_time_s: now_s,
+                    arrived_s: now_s,
                 });
             }
         }

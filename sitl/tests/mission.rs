@@ -24,6 +24,11 @@ fn reference() -> (MissionModel, PluginRegistry) {
 static CORES: std::sync::RwLock<()> = std::sync::RwLock::new(());
 
 fn fly(options: SimOptions) -> SimOutcome {
+    let (model, registry) = reference();
+    fly_model(&model, &registry, options)
+}
+
+fn fly_model(model: &MissionModel, registry: &PluginRegistry, options: SimOptions) -> SimOutcome {
     let _shared = if options.real_time {
         None
     } else {
@@ -38,8 +43,7 @@ fn fly(options: SimOptions) -> SimOutcome {
             .write()
             .unwrap_or_else(|poisoned| poisoned.into_inner())
     });
-    let (model, registry) = reference();
-    simulate(&model, &registry, &options).unwrap()
+    simulate(model, registry, &options).unwrap()
 }
 
 fn short(seed: u64) -> SimOptions {
@@ -52,6 +56,30 @@ fn short(seed: u64) -> SimOptions {
 
 fn has_event(outcome: &SimOutcome, text: &str) -> bool {
     outcome.events.iter().any(|(_, event)| event.contains(text))
+}
+
+#[test]
+fn the_triggered_landing_chain_answers_each_frame_in_the_pass_that_delivers_it() {
+    let triggered = fly(short(3));
+    let [_, _, max_ms] = triggered
+        .delivered_to_setpoint_ms
+        .expect("the vision loop steered on fixes");
+    assert!(triggered.landed_on_pad, "{triggered:?}");
+    // Virtual time: detection, tracking and guidance run at the frame's arrival, the
+    // setpoint goes out in the same turn of the loop.
+    assert_eq!(max_ms, 0.0, "{:?}", triggered.delivered_to_setpoint_ms);
+    // The same chain on its periods waits for each task's tick.
+    let (mut model, registry) = reference();
+    for task in &mut model.config.tasks {
+        task.trigger = runtime::config::TaskTrigger::Period;
+        task.max_idle_ms = None;
+    }
+    let periodic = fly_model(&model, &registry, short(3));
+    let [p50_ms, _, _] = periodic.delivered_to_setpoint_ms.unwrap();
+    assert!(p50_ms >= 10.0, "{:?}", periodic.delivered_to_setpoint_ms);
+    let [capture_p50_ms, ..] = triggered.capture_to_setpoint_ms.unwrap();
+    let [periodic_capture_p50_ms, ..] = periodic.capture_to_setpoint_ms.unwrap();
+    assert!(capture_p50_ms < periodic_capture_p50_ms);
 }
 
 #[test]

@@ -168,6 +168,7 @@ impl CameraSource for ImageFolderSource {
             },
             // A recording's frames are taken as captured when they play.
             capture_time_s: start_s + frame_index as f64 / self.rate_fps,
+            arrived_s: now_s,
         }))
     }
 }

@@ -77,6 +77,8 @@ struct Arrived {
     image: Result<GrayImage, SampleError>,
     /// When it was captured, on this host's monotonic clock.
     captured_at: Instant,
+    /// When the appsink handed it over.
+    arrived_at: Instant,
 }
 
 #[derive(Default)]
@@ -84,6 +86,8 @@ struct Shared {
     queue: VecDeque<Arrived>,
     samples: u64,
     dropped: u64,
+    /// Unparked at each frame (the runtime's loop, so it takes the frame at once).
+    waker: Option<std::thread::Thread>,
 }
 
 /// A GStreamer pipeline as a camera.
@@ -174,7 +178,11 @@ impl GstreamerSource {
                         frame_index,
                         image,
                         captured_at,
+                        arrived_at: Instant::now(),
                     });
+                    if let Some(waker) = &shared.waker {
+                        waker.unpark();
+                    }
                     Ok(gst::FlowSuccess::Ok)
                 })
                 .build(),
@@ -229,6 +237,10 @@ impl GstreamerSource {
 impl CameraSource for GstreamerSource {
     fn name(&self) -> &str {
         &self.name
+    }
+
+    fn wake_on_frame(&mut self, thread: std::thread::Thread) {
+        lock(&self.shared).waker = Some(thread);
     }
 
     fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError> {
@@ -294,6 +306,7 @@ impl CameraSource for GstreamerSource {
                 image: Arc::new(image),
             },
             capture_time_s: now_s - age_s,
+            arrived_s: now_s - arrived.arrived_at.elapsed().as_secs_f64(),
         }))
     }
 

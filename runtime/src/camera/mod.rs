@@ -109,6 +109,9 @@ pub struct CameraStats {
 pub struct CapturedFrame {
     pub frame: CameraFrame,
     pub capture_time_s: f64,
+    /// When the frame reached the runtime (the source's own queue, before the runner took it),
+    /// on the same clock: from it the runtime's own delay is measured.
+    pub arrived_s: f64,
 }
 
 /// Anything that delivers camera frames: the simulator, an image folder, a GStreamer pipeline.
@@ -119,6 +122,10 @@ pub trait CameraSource: Send {
     /// The next frame if one is ready at `now_s` (seconds on the runtime's clock), `Ok(None)` if
     /// not yet.
     fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError>;
+
+    /// Unpark `thread` whenever a frame arrives, so a loop that sleeps between polls takes it
+    /// at once. Sources whose frames are due at known times (a folder) need not.
+    fn wake_on_frame(&mut self, _thread: std::thread::Thread) {}
 
     /// Counters of what the source delivered and lost; sources that cannot lose frames between
     /// polls report none.
@@ -182,6 +189,7 @@ mod tests {
                     image: Arc::new(GrayImage::filled(4, 4, 0).unwrap()),
                 },
                 capture_time_s,
+                arrived_s: capture_time_s + 0.05,
             });
         }
         assert!(reader.next_frame(0.99).unwrap().is_none());

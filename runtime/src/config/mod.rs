@@ -234,6 +234,59 @@ impl fmt::Display for Knob {
     }
 }
 
+/// What activates a task: its period (the default), or the arrival of a message on one of its
+/// inputs (`trigger = "input:vision/landing_marker"`), its QoS level then being its rate cap.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum TaskTrigger {
+    #[default]
+    Period,
+    Input(String),
+}
+
+impl TaskTrigger {
+    pub fn is_period(&self) -> bool {
+        *self == TaskTrigger::Period
+    }
+
+    /// The input topic that triggers the task, if one does.
+    pub fn input(&self) -> Option<&str> {
+        match self {
+            TaskTrigger::Period => None,
+            TaskTrigger::Input(topic) => Some(topic),
+        }
+    }
+}
+
+impl TryFrom<String> for TaskTrigger {
+    type Error = String;
+
+    fn try_from(text: String) -> Result<Self, Self::Error> {
+        match text.strip_prefix("input:") {
+            _ if text == "period" => Ok(TaskTrigger::Period),
+            Some(topic) if !topic.trim().is_empty() => Ok(TaskTrigger::Input(topic.to_string())),
+            _ => Err(format!(
+                "trigger `{text}`: expected `period` or `input:TOPIC` (one of the task's inputs, e.g. `input:camera/frame`)"
+            )),
+        }
+    }
+}
+
+impl From<TaskTrigger> for String {
+    fn from(trigger: TaskTrigger) -> Self {
+        match trigger {
+            TaskTrigger::Period => "period".to_string(),
+            TaskTrigger::Input(topic) => format!("input:{topic}"),
+        }
+    }
+}
+
+impl fmt::Display for TaskTrigger {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&String::from(self.clone()))
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TaskConfig {
@@ -254,6 +307,14 @@ pub struct TaskConfig {
     /// `{ policy = "on_failure", max_restarts = 3 }` (the default).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub restart: Option<crate::scheduler::RestartPolicy>,
+    /// What activates the task: `"period"` (the default) or `"input:TOPIC"`.
+    #[serde(default, skip_serializing_if = "TaskTrigger::is_period")]
+    pub trigger: TaskTrigger,
+    /// An input-triggered task also runs after this long without running (never more often
+    /// than its level's period): a tracker predicting between fixes, guidance streaming while
+    /// the camera is slow. Without it the task runs only on its input.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_idle_ms: Option<f64>,
     /// Free settings handed to the plugin.
     #[serde(default, skip_serializing_if = "toml::Table::is_empty")]
     pub params: toml::Table,

@@ -462,7 +462,52 @@ fn check_tasks(config: &MissionConfig, plugins: &PluginCatalog, path: &Path, iss
             );
         }
         check_levels(task, &task_path, issues);
+        check_trigger(task, plugins, &task_path, issues);
     }
+}
+
+/// A trigger names one of the task's own inputs; `max_idle_ms` belongs to a triggered task.
+fn check_trigger(task: &TaskConfig, plugins: &PluginCatalog, path: &Path, issues: &mut Issues) {
+    if let Some(max_idle_ms) = task.max_idle_ms {
+        if task.trigger.input().is_none() {
+            issues.push(
+                &path.key("max_idle_ms"),
+                format!(
+                    "task `{}` runs on its period; `max_idle_ms` only applies with `trigger = \"input:TOPIC\"`",
+                    task.name
+                ),
+            );
+        } else if !(max_idle_ms.is_finite() && max_idle_ms > 0.0) {
+            issues.push(
+                &path.key("max_idle_ms"),
+                format!("max_idle_ms must be a finite number > 0, found {max_idle_ms}"),
+            );
+        }
+    }
+    let (Some(topic), Some(plugin)) = (task.trigger.input(), plugins.get(&task.plugin)) else {
+        // An unknown plugin is reported as such.
+        return;
+    };
+    if plugin.inputs.iter().any(|port| port.topic == topic) {
+        return;
+    }
+    let inputs: Vec<&str> = plugin.inputs.iter().map(|port| port.topic).collect();
+    let read = if inputs.is_empty() {
+        format!("; plugin `{}` reads no input", plugin.name)
+    } else {
+        format!(
+            "{}; its inputs: {}",
+            did_you_mean(topic, inputs.iter().copied()),
+            inputs.join(", ")
+        )
+    };
+    issues.push(
+        &path.key("trigger"),
+        format!(
+            "task `{}` is triggered by `{topic}`, which it does not read{read}",
+            task.name
+        ),
+    );
 }
 
 fn check_plugin(task: &TaskConfig, plugins: &PluginCatalog, path: &Path, issues: &mut Issues) {

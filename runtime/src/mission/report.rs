@@ -105,6 +105,10 @@ pub struct MissionLog {
     /// with the vision fix it gave.
     #[serde(skip)]
     pub(crate) capture_to_setpoint: crate::scheduler::stats::Histogram,
+    /// From the frame's arrival at the runtime (its source's queue) to that setpoint: what the
+    /// runtime itself adds.
+    #[serde(skip)]
+    pub(crate) delivered_to_setpoint: crate::scheduler::stats::Histogram,
     /// Wall time of one turn of the loop (link, governor, camera, tasks in virtual time,
     /// sequencer, commands, recording).
     #[serde(skip)]
@@ -115,6 +119,11 @@ impl MissionLog {
     /// Capture-to-setpoint latency of the vision loop (count 0 when it never steered).
     pub fn capture_to_setpoint(&self) -> crate::scheduler::DurationSummary {
         self.capture_to_setpoint.summary()
+    }
+
+    /// Frame-arrival-to-setpoint latency: the runtime's own share of the above.
+    pub fn delivered_to_setpoint(&self) -> crate::scheduler::DurationSummary {
+        self.delivered_to_setpoint.summary()
     }
 
     /// Wall time of the loop's steps.

@@ -53,6 +53,9 @@ const STREAM_REQUEST_PERIOD_S: f64 = 5.0;
 
 /// A landing setpoint older than this no longer steers.
 pub const SETPOINT_MAX_AGE_S: f64 = 0.5;
+
+/// Frames whose arrival is remembered: a fix comes from one of the last few.
+const ARRIVALS_KEPT: usize = 16;
 /// How long a lockstep poll waits for the simulated autopilot (wall clock).
 pub const LOCKSTEP_TIMEOUT: Duration = Duration::from_secs(5);
 
@@ -115,6 +118,8 @@ pub struct MissionRunner<S: TaskScheduler> {
     frames: Publisher<CameraFrame>,
     /// The vehicle's recent states, to hand each frame the one at its exposure.
     vehicle_history: AttitudeHistory,
+    /// The last frames' capture and arrival times, to tell the runtime's own delay.
+    arrivals: std::collections::VecDeque<(f64, f64)>,
     setpoints: Subscriber<LandingSetpoint>,
     relative: Subscriber<RelativeState>,
     phase: Option<usize>,
@@ -148,6 +153,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             vehicle_topic: bus.publisher(VEHICLE_STATE)?,
             phase_topic: bus.publisher(MISSION_PHASE)?,
             frames: bus.publisher(CAMERA_FRAME)?,
+            arrivals: std::collections::VecDeque::with_capacity(ARRIVALS_KEPT),
             vehicle_history: AttitudeHistory::new(VEHICLE_HISTORY_S),
             setpoints: bus.subscriber(LANDING_SETPOINT)?,
             relative: bus.subscriber(RELATIVE_STATE)?,
@@ -332,6 +338,19 @@ impl<S: TaskScheduler> MissionRunner<S> {
         Ok(())
     }
 
+    /// Unparks `thread` when a frame arrives or the landing task publishes a setpoint: a loop
+    /// that sleeps between steps wakes to take the frame, or to send the setpoint, at once.
+    pub fn wake_on_input(&mut self, thread: std::thread::Thread) -> Result<(), RunnerError> {
+        if let Some(camera) = self.camera.as_mut() {
+            camera.wake_on_frame(thread.clone());
+        }
+        self.scheduler
+            .bus()
+            .activity(LANDING_SETPOINT.name())?
+            .watch(thread);
+        Ok(())
+    }
+
     /// Stops the tasks; statistics stay readable.
     pub fn stop(&mut self) {
         self.scheduler.stop();
@@ -461,8 +480,13 @@ impl<S: TaskScheduler> MissionRunner<S> {
                     let capture_s = captured.capture_time_s.min(now_s);
                     let mut frame = captured.frame;
                     frame.vehicle_at_capture = self.vehicle_history.at(capture_s);
-                    self.frames
-                        .publish(Timestamp::from_secs_f64(capture_s.max(0.0)), frame);
+                    let stamp = Timestamp::from_secs_f64(capture_s.max(0.0));
+                    if self.arrivals.len() == ARRIVALS_KEPT {
+                        self.arrivals.pop_front();
+                    }
+                    self.arrivals
+                        .push_back((stamp.as_secs_f64(), captured.arrived_s.min(now_s)));
+                    self.frames.publish(stamp, frame);
                 }
                 Ok(None) => break,
                 Err(error @ CameraSourceError::Ended { .. }) => {
@@ -553,6 +577,17 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 self.log
                     .capture_to_setpoint
                     .record(((now_s - fix_s) * 1e9) as u64);
+                // The fix is stamped with its frame's capture: the frame it came from.
+                let arrived_s = self
+                    .arrivals
+                    .iter()
+                    .find(|(capture_s, _)| (capture_s - fix_s).abs() < 1e-6)
+                    .map(|&(_, arrived_s)| arrived_s);
+                if let Some(arrived_s) = arrived_s.filter(|&a| now_s >= a) {
+                    self.log
+                        .delivered_to_setpoint
+                        .record(((now_s - arrived_s) * 1e9) as u64);
+                }
             }
         }
     }

@@ -252,6 +252,8 @@ fn task_config(name: &str, plugin: &str, period_ms: f64, params: toml::Table) ->
         utility: vec![1.0],
         restart: None,
         params,
+        trigger: Default::default(),
+        max_idle_ms: None,
         config_dir: None,
     }
 }

@@ -229,6 +229,8 @@ mod tests {
             utility: vec![1.0],
             restart: None,
             params: toml::from_str(params).unwrap(),
+            trigger: Default::default(),
+            max_idle_ms: None,
             config_dir: None,
         }
     }

@@ -69,6 +69,8 @@ pub(crate) fn build_from_params<P: DeserializeOwned, T>(
         utility: vec![1.0],
         restart: None,
         params: toml::from_str(text).expect("test params are TOML"),
+        trigger: Default::default(),
+        max_idle_ms: None,
         config_dir: None,
     };
     build_for_test(&config, &crate::bus::Bus::new(), |build| {
@@ -207,6 +209,17 @@ mod tests {
         }
     }
 
+    /// The hovering vehicle as a task at the detector's rate. It makes the frames detection is
+    /// triggered by: it runs on its period.
+    fn hovering_vehicle_task(config: &crate::config::MissionConfig) -> crate::config::TaskConfig {
+        let mut vehicle = config.task("detection").unwrap().clone();
+        vehicle.name = "vehicle".into();
+        vehicle.plugin = "hovering_vehicle".into();
+        vehicle.params = toml::Table::new();
+        vehicle.trigger = crate::config::TaskTrigger::Period;
+        vehicle
+    }
+
     /// The reference config's chain on a camera mounted as `mount` says, the vehicle's
     /// camera mounted as `body_camera` says: the tracker's estimate after 2 s, and the chain's
     /// scheduler and setpoints.
@@ -226,10 +239,7 @@ mod tests {
             .unwrap();
         let reference = include_str!("../../../qos.toml");
         let config = load_str(reference, None, &PluginCatalog::builtin()).unwrap();
-        let mut vehicle = config.task("detection").unwrap().clone();
-        vehicle.name = "vehicle".into();
-        vehicle.plugin = "hovering_vehicle".into();
-        vehicle.params = toml::Table::new();
+        let vehicle = hovering_vehicle_task(&config);
         let mut builder = SchedulerBuilder::new(&registry);
         builder.task(&vehicle);
         let mut tasks = Vec::new();
@@ -320,10 +330,7 @@ mod tests {
             .unwrap();
         let reference = include_str!("../../../qos.toml");
         let config = load_str(reference, None, &PluginCatalog::builtin()).unwrap();
-        let mut vehicle = config.task("detection").unwrap().clone();
-        vehicle.name = "vehicle".into();
-        vehicle.plugin = "hovering_vehicle".into();
-        vehicle.params = toml::Table::new();
+        let vehicle = hovering_vehicle_task(&config);
         let mut landing = config.task("landing").unwrap().clone();
         landing
             .params

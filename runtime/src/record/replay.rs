@@ -186,6 +186,8 @@ pub fn replay(
                         vehicle_at_capture: None,
                     },
                     capture_time_s: Timestamp::from_nanos(message.publish_time_ns).as_secs_f64(),
+                    // Recorded as the runner took it.
+                    arrived_s: Timestamp::from_nanos(message.log_time_ns).as_secs_f64(),
                 });
             }
             t if t == ch::CAMERA_DEPTH.topic => {

@@ -39,6 +39,7 @@
 //! # let config = TaskConfig { name: "ping".into(), plugin: "ping".into(), resource: Resource::Cpu,
 //! #     cores: vec![], phases: vec!["tracking".into()], weight: 1.0, knob: Knob::PeriodMs,
 //! #     levels: vec![100.0, 20.0], utility: vec![0.5, 1.0], restart: None, params: Default::default(),
+//! #     trigger: Default::default(), max_idle_ms: None,
 //! #     config_dir: None };
 //! let mut scheduler = SchedulerBuilder::new(&registry).task(&config).build_virtual().unwrap();
 //! scheduler.run_for(std::time::Duration::from_secs(1)).unwrap();
@@ -52,6 +53,7 @@ mod runner;
 pub(crate) mod stats;
 mod task_scheduler;
 mod timing;
+mod trigger;
 mod virtual_time;
 
 #[cfg(test)]
@@ -117,6 +119,12 @@ pub enum SchedulerError {
         task: String,
         #[source]
         source: std::io::Error,
+    },
+    #[error("task `{task}`: its trigger: {source}")]
+    Trigger {
+        task: String,
+        #[source]
+        source: crate::bus::BusError,
     },
     #[error("the scheduler was already started")]
     AlreadyStarted,
@@ -314,6 +322,22 @@ impl<'r> SchedulerBuilder<'r> {
                 Resource::Cpu => None,
             };
             let instance = factory.create(&params, config, &bus)?;
+            let trigger = match config.trigger.input() {
+                None => None,
+                Some(topic) => {
+                    let activity =
+                        bus.activity(topic)
+                            .map_err(|source| SchedulerError::Trigger {
+                                task: config.name.clone(),
+                                source,
+                            })?;
+                    let max_idle_ns = config
+                        .max_idle_ms
+                        .filter(|ms| ms.is_finite() && *ms > 0.0)
+                        .map(|ms| duration_to_nanos(Duration::from_secs_f64(ms / 1e3)));
+                    Some(trigger::InputTrigger::new(activity, max_idle_ns))
+                }
+            };
             let seed = task_seed(self.seed, index);
             let period_ms = levels[level].period_ms;
             runners.push(TaskRunner {
@@ -323,6 +347,7 @@ impl<'r> SchedulerBuilder<'r> {
                 factory,
                 instance: Some(instance),
                 cadence: Cadence::new(0, duration_to_nanos(levels[level].period())),
+                trigger,
                 levels,
                 level,
                 restart: options.restart,

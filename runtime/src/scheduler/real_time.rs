@@ -1,7 +1,8 @@
 //! Real time: every task on its own worker thread, activated by the wall clock.
 //!
 //! A worker sleeps until its task's next activation (parked with a timeout, so a level change
-//! or a stop wakes it at once), runs the step, measures it and books it with the same cadence
+//! or a stop wakes it at once; an input-triggered task's worker is also woken by its input's
+//! messages), runs the step, measures it and books it with the same cadence
 //! logic as virtual time. CPU tasks may be pinned to their configured `cores`; the GPU task's
 //! worker holds the GPU lease for as long as the task lives. I/O (the MAVLink link, camera
 //! sources) belongs on tokio, outside these workers.
@@ -397,6 +398,11 @@ fn worker_main(
     // (just before sleeping or stepping) is the worker's own bookkeeping per activation.
     let mut last_finished: Option<Timestamp> = None;
     let mut overhead_ns = None;
+    // An input-triggered task's worker is woken by its input's every message.
+    let input = runner.trigger().map(|trigger| trigger.activity().clone());
+    if let Some(input) = &input {
+        input.watch(thread::current());
+    }
     loop {
         if shared.stop.load(Ordering::Acquire) {
             break;
@@ -417,11 +423,17 @@ fn worker_main(
             thread::park();
             continue;
         }
-        let due = runner.next_due();
         let now = clock.now();
+        runner.notice_input(now);
         if let Some(finished) = last_finished.take() {
             overhead_ns = Some(now.as_nanos().saturating_sub(finished.as_nanos()));
         }
+        let Some(due) = runner.next_due_at(now) else {
+            // Input-triggered with nothing to run on: sleep until a message, a level change
+            // or the stop.
+            thread::park();
+            continue;
+        };
         if now < due {
             // Woken early by set_level or stop (or spuriously): the loop re-checks both.
             thread::park_timeout(due.saturating_duration_since(now));
@@ -431,6 +443,9 @@ fn worker_main(
         let finished = clock.now();
         runner.record(due, now, finished, &report, overhead_ns.take());
         last_finished = Some(finished);
+    }
+    if let Some(input) = &input {
+        input.unwatch(thread::current().id());
     }
     runner.shutdown();
 }

@@ -3,6 +3,7 @@
 use super::cadence::{Cadence, Completion};
 use super::stats::StatsAccum;
 use super::timing::SplitMix64;
+use super::trigger::InputTrigger;
 use super::*;
 use crate::task::{panic_as_failure, TaskError};
 
@@ -24,6 +25,8 @@ pub(crate) struct ActivationReport {
     pub failure: Option<Failure>,
     /// The step's own cost report (virtual time).
     pub reported_cost: Option<Duration>,
+    /// Input-triggered: the inputs superseded before this run took the newest.
+    pub dropped_inputs: u64,
 }
 
 #[derive(Debug, Clone)]
@@ -48,6 +51,8 @@ pub(crate) struct TaskRunner {
     pub(super) levels: Vec<QosLevel>,
     pub(super) level: usize,
     pub(super) cadence: Cadence,
+    /// Set for an input-triggered task: it runs on its input, the cadence's period its cap.
+    pub(super) trigger: Option<InputTrigger>,
     pub(super) restart: RestartPolicy,
     pub(super) restarts: u32,
     pub(super) timing: Option<TimingModel>,
@@ -108,19 +113,57 @@ impl TaskRunner {
         }
         self.active = active;
         if active {
-            self.cadence = Cadence::new(now.as_nanos(), self.cadence.period_ns());
+            self.restart_activations(now);
         }
         tracing::info!(task = %self.config.name, "task {}", if active { "resumed" } else { "suspended" });
         Some(active)
     }
 
-    pub fn next_due(&self) -> Timestamp {
-        Timestamp::from_nanos(self.cadence.next_ns())
+    /// When the task is next due, seen at `now`: a periodic task on its grid; an input-triggered
+    /// one for its pending input or its idle time, or `None` until an input arrives.
+    pub fn next_due_at(&self, now: Timestamp) -> Option<Timestamp> {
+        match &self.trigger {
+            None => Some(self.cadence.next_ns()),
+            Some(trigger) => trigger.next_due_ns(now.as_nanos(), self.cadence.period_ns()),
+        }
+        .map(Timestamp::from_nanos)
+    }
+
+    /// When the task would take an input that arrives at `now` (a periodic task: at its next
+    /// activation).
+    pub fn next_input_take(&self, now: Timestamp) -> Timestamp {
+        match &self.trigger {
+            None => Timestamp::from_nanos(self.cadence.next_ns()),
+            Some(trigger) => Timestamp::from_nanos(
+                trigger.earliest_input_run_ns(now.as_nanos(), self.cadence.period_ns()),
+            ),
+        }
+    }
+
+    /// An input-triggered task's input, if it has one.
+    pub fn trigger(&self) -> Option<&InputTrigger> {
+        self.trigger.as_ref()
+    }
+
+    /// Marks a new input as arrived at `now` (input-triggered tasks; no-op otherwise).
+    pub fn notice_input(&mut self, now: Timestamp) {
+        if let Some(trigger) = &mut self.trigger {
+            trigger.notice(now.as_nanos());
+        }
+    }
+
+    /// Activations begin afresh at `at`: a periodic task's first one is then, an
+    /// input-triggered one waits for an input from then on.
+    fn restart_activations(&mut self, at: Timestamp) {
+        self.cadence = Cadence::new(at.as_nanos(), self.cadence.period_ns());
+        if let Some(trigger) = &mut self.trigger {
+            trigger.restart(at.as_nanos());
+        }
     }
 
     /// Gives the instance its level and starts it; the first activation is at `first_activation`.
     pub fn start(&mut self, now: Timestamp, first_activation: Timestamp) -> Option<Failure> {
-        self.cadence = Cadence::new(first_activation.as_nanos(), self.cadence.period_ns());
+        self.restart_activations(first_activation);
         let mut instance = self.instance.take()?;
         let result = self.start_instance(instance.as_mut(), now);
         self.instance = Some(instance);
@@ -135,7 +178,7 @@ impl TaskRunner {
 
     /// Moves the first activation to `at` (real time: once every worker has started).
     pub fn reschedule_first(&mut self, at: Timestamp) {
-        self.cadence = Cadence::new(at.as_nanos(), self.cadence.period_ns());
+        self.restart_activations(at);
     }
 
     /// `set_qos` then `start`, with panics caught.
@@ -155,6 +198,10 @@ impl TaskRunner {
         let mut report = ActivationReport::default();
         if self.state == TaskHealth::Failed {
             return report;
+        }
+        // What the step will read has arrived by now; what comes during the step is next.
+        if let Some(trigger) = &mut self.trigger {
+            report.dropped_inputs = trigger.run(now.as_nanos(), self.cadence.period_ns());
         }
         if self.instance.is_none() {
             self.restarts += 1;
@@ -226,10 +273,21 @@ impl TaskRunner {
         report: &ActivationReport,
         overhead_ns: Option<u64>,
     ) -> Completion {
-        let completion =
-            self.cadence
-                .complete(due.as_nanos(), started.as_nanos(), finished.as_nanos());
+        let completion = match &mut self.trigger {
+            None => self
+                .cadence
+                .complete(due.as_nanos(), started.as_nanos(), finished.as_nanos()),
+            Some(trigger) => {
+                trigger.finish(finished.as_nanos());
+                Completion {
+                    overrun: finished.as_nanos().saturating_sub(started.as_nanos())
+                        > self.cadence.period_ns(),
+                    skipped: 0,
+                }
+            }
+        };
         let mut stats = lock(&self.stats);
+        stats.dropped_inputs += report.dropped_inputs;
         if report.stepped {
             stats.activations += 1;
             stats

@@ -127,6 +127,9 @@ pub struct TaskStats {
     pub overruns: u64,
     /// Activation instants that fell while the previous step was still running, never run.
     pub skipped: u64,
+    /// Input-triggered tasks: inputs superseded before the task could take them (it arrived
+    /// within the rate cap, or while the task was busy), never stepped on.
+    pub dropped_inputs: u64,
     /// Failed `start`, `step` or `set_qos` calls (errors and panics) and failed restarts.
     pub failures: u64,
     /// Restart attempts (each builds a fresh instance from the factory).
@@ -150,6 +153,7 @@ pub(crate) struct StatsAccum {
     pub activations: u64,
     pub overruns: u64,
     pub skipped: u64,
+    pub dropped_inputs: u64,
     pub failures: u64,
     pub restarts: u64,
     pub step_time: Histogram,
@@ -168,6 +172,7 @@ impl StatsAccum {
             activations: self.activations,
             overruns: self.overruns,
             skipped: self.skipped,
+            dropped_inputs: self.dropped_inputs,
             failures: self.failures,
             restarts: self.restarts,
             step_time: self.step_time.summary(),

@@ -37,6 +37,10 @@ pub enum TraceKind {
     Skipped {
         count: u64,
     },
+    /// An input-triggered task took the newest of its inputs; this many came before it unread.
+    DroppedInputs {
+        count: u64,
+    },
     Failed {
         error: String,
         gave_up: bool,
@@ -60,6 +64,8 @@ pub struct VirtualScheduler {
     /// (due time ns, task index, generation); entries of an older generation are stale.
     queue: BinaryHeap<Reverse<(u64, usize, u64)>>,
     generations: Vec<u64>,
+    /// The due time each task has in the queue (of its current generation), if any.
+    queued_ns: Vec<Option<u64>>,
     bus: Bus,
     resources: Resources,
     health: MissionHealth,
@@ -82,6 +88,7 @@ impl VirtualScheduler {
             names,
             queue: BinaryHeap::with_capacity(count),
             generations: vec![0; count],
+            queued_ns: vec![None; count],
             bus: parts.bus,
             resources: parts.resources,
             health: parts.health,
@@ -133,6 +140,9 @@ impl VirtualScheduler {
         if !self.started {
             self.start()?;
         }
+        // What was published from outside since the last call (a camera frame, telemetry)
+        // arrived by `until`.
+        self.poll_triggers(until);
         let mut activations = 0;
         while let Some(&Reverse((due_ns, index, generation))) = self.queue.peek() {
             if due_ns > until.as_nanos() {
@@ -167,6 +177,25 @@ impl VirtualScheduler {
             self.trace_activation(index, due, cost, &report, completion);
         }
         self.schedule(index);
+        // What the step published reaches the tasks it triggers when the step ends.
+        self.poll_triggers(finished);
+    }
+
+    /// Input-triggered tasks whose input has a new message are queued for it, as arrived at
+    /// `now` unless noticed before.
+    fn poll_triggers(&mut self, now: Timestamp) {
+        for index in 0..self.runners.len() {
+            let runner = &mut self.runners[index];
+            if runner.trigger().is_none() || !runner.is_scheduled() {
+                continue;
+            }
+            runner.notice_input(now);
+            let due = runner.next_due_at(now).map(Timestamp::as_nanos);
+            if due != self.queued_ns[index] {
+                self.generations[index] += 1;
+                self.schedule(index);
+            }
+        }
     }
 
     fn trace_activation(
@@ -199,6 +228,12 @@ impl VirtualScheduler {
             };
             self.push_trace(due, index, kind);
         }
+        if report.dropped_inputs > 0 {
+            let kind = TraceKind::DroppedInputs {
+                count: report.dropped_inputs,
+            };
+            self.push_trace(due, index, kind);
+        }
     }
 
     fn push_trace(&mut self, time: Timestamp, index: usize, kind: TraceKind) {
@@ -211,12 +246,19 @@ impl VirtualScheduler {
         }
     }
 
-    /// Queues the task's next activation (none once it failed for good).
+    /// Queues the task's next activation (none once it failed for good, nor for a triggered
+    /// task with nothing to run on).
     fn schedule(&mut self, index: usize) {
+        self.queued_ns[index] = None;
         let runner = &self.runners[index];
-        if runner.is_scheduled() {
-            let entry = (runner.next_due().as_nanos(), index, self.generations[index]);
-            self.queue.push(Reverse(entry));
+        if !runner.is_scheduled() {
+            return;
+        }
+        if let Some(due) = runner.next_due_at(self.clock.now()) {
+            let due_ns = due.as_nanos();
+            self.queue
+                .push(Reverse((due_ns, index, self.generations[index])));
+            self.queued_ns[index] = Some(due_ns);
         }
     }
 
@@ -294,11 +336,12 @@ impl VirtualScheduler {
         self.clock.now()
     }
 
-    /// When `task` is next activated, if it still is (a simulator renders a camera frame only
-    /// when a consumer will look at it).
+    /// When `task` next takes an input, if it still runs: a periodic task at its next
+    /// activation, an input-triggered one as soon as an input arriving now could run it (a
+    /// simulator renders a camera frame only when a consumer will look at it).
     pub fn next_activation(&self, task: &str) -> Option<Timestamp> {
         let runner = &self.runners[self.index_of(task).ok()?];
-        (self.started && runner.is_scheduled()).then(|| runner.next_due())
+        (self.started && runner.is_scheduled()).then(|| runner.next_input_take(self.clock.now()))
     }
 
     /// A handle on the scheduler's clock, for reading (the scheduler advances it; advancing it

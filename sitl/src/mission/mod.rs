@@ -428,6 +428,7 @@ pub fn simulate(
                             image: frame.image,
                         },
                         capture_time_s,
+                        arrived_s: runtime_now_s,
                     }),
                     Err(error) => events.push((time_s, format!("camera: {error}"))),
                 }
@@ -630,6 +631,8 @@ pub fn simulate(
         .collect();
     let log = runner.log();
     let loop_step = log.loop_step();
+    let latency = log.capture_to_setpoint();
+    let delivered = log.delivered_to_setpoint();
     let qos_changes = log
         .governor
         .iter()
@@ -680,5 +683,10 @@ pub fn simulate(
         qos_track,
         loop_step_p50_us: loop_step.p50_us,
         loop_step_p99_us: loop_step.p99_us,
+        capture_to_setpoint_ms: (latency.count > 0)
+            .then(|| [latency.p50_us, latency.p99_us, latency.max_us].map(|us| us / 1e3)),
+        capture_to_setpoint_fixes: latency.count,
+        delivered_to_setpoint_ms: (delivered.count > 0)
+            .then(|| [delivered.p50_us, delivered.p99_us, delivered.max_us].map(|us| us / 1e3)),
     })
 }

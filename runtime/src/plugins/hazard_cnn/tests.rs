@@ -28,6 +28,8 @@ fn task_on(
         utility: vec![1.0],
         restart: None,
         params: toml::from_str(text).unwrap(),
+        trigger: Default::default(),
+        max_idle_ms: None,
         config_dir: config_dir.map(std::path::Path::to_path_buf),
     };
     super::super::build_for_test(&config, bus, |build| {

@@ -155,6 +155,8 @@ fn probe(name: &str, knob: Knob, levels: &[f64], params: &str) -> TaskConfig {
         levels: levels.to_vec(),
         restart: None,
         params: toml::from_str(params).unwrap(),
+        trigger: Default::default(),
+        max_idle_ms: None,
         config_dir: None,
     }
 }
@@ -178,3 +180,4 @@ mod rates;
 mod replay;
 mod setup;
 mod timing;
+mod triggers;

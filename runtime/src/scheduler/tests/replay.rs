@@ -134,7 +134,16 @@ fn replay(seed: u64) -> Replay {
             })
             .unwrap();
     }
-    let mut config = reference(&registry.catalog());
+    // The roles read other topics than the built-in plugins: the reference chain over theirs,
+    // detection on its period (here it has no input), tracking and guidance triggered by their
+    // inputs as in qos.toml.
+    let mut config = reference(&PluginCatalog::builtin());
+    config.tasks[0].trigger = crate::config::TaskTrigger::Period;
+    config.tasks[1].trigger = crate::config::TaskTrigger::Input(MARKER.name().into());
+    config.tasks[2].trigger = crate::config::TaskTrigger::Input(RELATIVE.name().into());
+    // Guidance idle on the tracker's period: its idle runs race the triggered ones, which the
+    // replay must reproduce too.
+    config.tasks[2].max_idle_ms = Some(20.0);
     // Measured step times with a heavy tail, so overruns and skips depend on the draws.
     config.tasks[0].params.insert(
         STEP_COST_PARAM.into(),
