@@ -114,6 +114,9 @@ struct TaskSummary<'a> {
     weight: f64,
     knob: runtime::config::Knob,
     levels: Vec<LevelSummary>,
+    /// `period`, or `input:TOPIC` with the levels as its rate cap.
+    trigger: &'a runtime::config::TaskTrigger,
+    max_idle_ms: Option<f64>,
     params: &'a toml::Table,
 }
 
@@ -172,6 +175,8 @@ impl<'a> Summary<'a> {
                     phases: &task.phases,
                     weight: task.weight,
                     knob: task.knob,
+                    trigger: &task.trigger,
+                    max_idle_ms: task.max_idle_ms,
                     levels: task
                         .levels
                         .iter()
@@ -277,6 +282,12 @@ fn human_summary(loaded: &LoadedConfig, graph: TaskGraph) -> String {
             task.knob,
             levels.join(" → ")
         );
+        if let Some(topic) = task.trigger.input() {
+            let idle = task.max_idle_ms.map_or_else(String::new, |ms| {
+                format!(", on its own after {} ms idle", fmt_number(ms))
+            });
+            out += &format!("             runs on `{topic}` (the levels cap its rate){idle}\n");
+        }
     }
     out
 }
