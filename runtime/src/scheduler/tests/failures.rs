@@ -216,10 +216,7 @@ fn real_time_panicking_task_is_isolated_and_the_others_keep_their_rates() {
                 ..TaskOptions::default()
             },
         )
-        .build_real_time(RealTimeOptions {
-            pinning: Pinning::Off,
-            ..RealTimeOptions::default()
-        })
+        .build_real_time(unpinned())
         .unwrap();
     let started = Instant::now();
     scheduler.start().unwrap();

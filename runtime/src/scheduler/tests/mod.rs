@@ -161,6 +161,14 @@ fn probe(name: &str, knob: Knob, levels: &[f64], params: &str) -> TaskConfig {
     }
 }
 
+/// Real time without pinning: the tests' tasks run wherever the machine has room.
+fn unpinned() -> RealTimeOptions {
+    RealTimeOptions {
+        pinning: Pinning::Off,
+        ..RealTimeOptions::default()
+    }
+}
+
 fn times_of(log: &Log, task: &str) -> Vec<u64> {
     log.lock()
         .unwrap()

@@ -57,10 +57,7 @@ fn real_time_suspends_a_task_outside_its_phases() {
     let mut scheduler = SchedulerBuilder::new(&probes.registry)
         .tasks(&tasks)
         .phase_gate(PhaseGate::Phase("transit".into()))
-        .build_real_time(RealTimeOptions {
-            pinning: Pinning::Off,
-            ..RealTimeOptions::default()
-        })
+        .build_real_time(unpinned())
         .unwrap();
     scheduler.start().unwrap();
     std::thread::sleep(Duration::from_millis(250));

@@ -57,12 +57,7 @@ fn real_time_rate_change_takes_effect_within_one_period() {
             ..TaskOptions::default()
         },
     );
-    let mut scheduler = builder
-        .build_real_time(RealTimeOptions {
-            pinning: Pinning::Off,
-            ..RealTimeOptions::default()
-        })
-        .unwrap();
+    let mut scheduler = builder.build_real_time(unpinned()).unwrap();
     scheduler.start().unwrap();
     std::thread::sleep(Duration::from_millis(60));
     // One activation at start; at 300 ms the next would be 240 ms away.

@@ -148,10 +148,7 @@ fn real_time_stop_stops_every_started_task_once() {
     let b = probe("b", Knob::PeriodMs, &[5.0], "");
     let mut builder = SchedulerBuilder::new(&probes.registry);
     builder.task(&a).task(&b);
-    let options = RealTimeOptions {
-        pinning: Pinning::Off,
-        ..RealTimeOptions::default()
-    };
+    let options = unpinned();
     // Built but never started: nothing to stop.
     drop(builder.build_real_time(options).unwrap());
     assert_eq!(probes.stops.load(Ordering::SeqCst), 0);

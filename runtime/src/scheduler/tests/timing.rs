@@ -101,10 +101,7 @@ fn real_time_overruns_and_skips_are_counted() {
     let slow = probe("slow", Knob::PeriodMs, &[10.0], "sleep_ms = 25");
     let mut scheduler = SchedulerBuilder::new(&probes.registry)
         .task(&slow)
-        .build_real_time(RealTimeOptions {
-            pinning: Pinning::Off,
-            ..RealTimeOptions::default()
-        })
+        .build_real_time(unpinned())
         .unwrap();
     scheduler.start().unwrap();
     std::thread::sleep(Duration::from_millis(300));

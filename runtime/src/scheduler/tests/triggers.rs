@@ -269,12 +269,7 @@ fn a_real_time_triggered_chain_answers_a_frame_long_before_any_period() {
     let mut builder = SchedulerBuilder::new(&registry);
     // 1 s periods: a periodic chain would answer in up to 3 s.
     builder.tasks(&chain(true, 1_000.0, ""));
-    let mut scheduler = builder
-        .build_real_time(RealTimeOptions {
-            pinning: Pinning::Off,
-            ..RealTimeOptions::default()
-        })
-        .unwrap();
+    let mut scheduler = builder.build_real_time(unpinned()).unwrap();
     scheduler.start().unwrap();
     let frames = scheduler.bus().publisher(FRAME).unwrap();
     let mut setpoints = scheduler.bus().subscriber(SETPOINT).unwrap();
