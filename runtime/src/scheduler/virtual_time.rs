@@ -255,7 +255,9 @@ impl VirtualScheduler {
             return;
         }
         if let Some(due) = runner.next_due_at(self.clock.now()) {
-            let due_ns = due.as_nanos();
+            // A due instant already past (an input noticed before a level change re-queued
+            // it) is now: the clock never goes back.
+            let due_ns = due.max(self.clock.now()).as_nanos();
             self.queue
                 .push(Reverse((due_ns, index, self.generations[index])));
             self.queued_ns[index] = Some(due_ns);

@@ -238,6 +238,39 @@ fn an_idle_triggered_task_runs_on_its_own_but_an_input_is_answered_at_once() {
 }
 
 #[test]
+fn a_level_change_while_an_input_waits_runs_it_now_not_in_the_past() {
+    let (registry, log) = relays();
+    let mut builder = SchedulerBuilder::new(&registry);
+    builder.task_with(
+        &TaskConfig {
+            knob: Knob::RateFps,
+            levels: vec![1.0, 4.0],
+            ..relay("detect", Some(FRAME), 0.0, "")
+        },
+        TaskOptions {
+            initial_level: Some(0),
+            ..TaskOptions::default()
+        },
+    );
+    let mut scheduler = builder.build_virtual().unwrap();
+    scheduler.start().unwrap();
+    let frames = scheduler.bus().publisher(FRAME).unwrap();
+    // Two frames spend the credit at 1 fps; a third, noticed at 20 ms, waits for it (1010 ms).
+    for (at_ms, value) in [(0, 1), (10, 2), (20, 3)] {
+        frames.publish(Timestamp::from_millis(at_ms), value);
+        scheduler.run_until(Timestamp::from_millis(at_ms)).unwrap();
+    }
+    scheduler.run_until(Timestamp::from_millis(600)).unwrap();
+    // At 4 fps it would have been due at 250 ms, already past: it runs now.
+    scheduler.set_level("detect", 1).unwrap();
+    scheduler.run_until(Timestamp::from_millis(3_000)).unwrap();
+    assert_eq!(
+        runs_of(&log, "detect"),
+        vec![(0, Some(1)), (10, Some(2)), (600, Some(3))]
+    );
+}
+
+#[test]
 fn triggered_virtual_runs_replay_exactly() {
     let run = || {
         let (registry, log) = relays();
