@@ -134,13 +134,12 @@ fn virtual_time_runs_much_faster_than_real_time() {
         .run_until(Timestamp::from_secs_f64(simulated_s))
         .unwrap();
     let wall_s = started.elapsed().as_secs_f64();
-    // Top levels. Detection waits for camera frames (none here); tracking and landing, also
-    // input-triggered, run on their idle times (20 and 50 ms) from then on; hazard at 4 fps
-    // from 0.
-    assert_eq!(activations, 30_000 + 12_000 + 2_401);
+    // Top levels. Every task is input-triggered and no camera frame comes here: detection
+    // never runs; tracking, landing and hazard run on their idle times (20 ms, 50 ms, 1 s).
+    assert_eq!(activations, 30_000 + 12_000 + 600);
     assert_eq!(scheduler.task_stats("detection").unwrap().activations, 0);
     let stats = scheduler.stats();
-    assert_eq!(stats[3].activations, 2_401);
+    assert_eq!(stats[3].activations, 600);
     assert!(
         simulated_s / wall_s > 100.0,
         "{simulated_s} s simulated in {wall_s:.3} s"
