@@ -3,16 +3,21 @@
 //!
 //! `appsrc` (GRAY8, stamped at capture) → `videoconvert` → `x264enc` (zero-latency tuning, no
 //! B-frames, a key frame every second so a receiver that joins late decodes within one) →
-//! `rtph264pay` (SPS/PPS with every key frame) → `udpsink`. A probe on the sink measures how
-//! long a frame takes from capture to leaving on the wire.
+//! `rtph264pay` (SPS/PPS with every key frame; each frame's first packet carries its capture
+//! time in RFC 6051's NTP-64 header extension, from the wall clock) → `udpsink`. A probe on
+//! the sink measures how long a frame takes from capture to leaving on the wire.
 
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::Duration;
+use std::time::{Duration, SystemTime};
 
 use algorithms::vision::image::GrayImage;
 use gstreamer as gst;
 use gstreamer::prelude::*;
 use gstreamer_app as gst_app;
+use gstreamer_rtp as gst_rtp;
+use gstreamer_rtp::prelude::*;
+use runtime::camera::gstreamer::{ntp_time, ntp_timestamp_caps, NTP_64_EXTENSION_URI};
+use runtime::camera::RTP_CAPTURE_TIME_EXTENSION_ID;
 
 /// Why the stream could not be built or fed.
 #[derive(Debug, thiserror::Error)]
@@ -84,7 +89,7 @@ impl RtpH264Sender {
              caps=video/x-raw,format=GRAY8,width={w},height={h},framerate={fps}/1 \
              ! videoconvert ! video/x-raw,format=I420 \
              ! x264enc tune=zerolatency speed-preset=ultrafast bitrate={kbit} key-int-max={fps} \
-             ! rtph264pay config-interval=-1 pt=96 \
+             ! rtph264pay name=payloader config-interval=-1 pt=96 \
              ! udpsink name=wire host={host} port={port} sync=false async=false",
             w = config.width_px,
             h = config.height_px,
@@ -100,6 +105,7 @@ impl RtpH264Sender {
             .by_name("frames")
             .and_then(|e| e.downcast::<gst_app::AppSrc>().ok())
             .ok_or_else(|| VideoError::Gstreamer("the appsrc is missing".into()))?;
+        add_capture_time_extension(&pipeline)?;
         let wire = pipeline
             .by_name("wire")
             .ok_or_else(|| VideoError::Gstreamer("the udpsink is missing".into()))?;
@@ -184,6 +190,7 @@ impl RtpH264Sender {
             }
         }
         let mut buffer = gst::Buffer::from_mut_slice(bytes);
+        let captured_wall = SystemTime::now() - age;
         // Stamped at capture: running time now, less the frame's age.
         let running = match (self.pipeline.clock(), self.pipeline.base_time()) {
             (Some(clock), Some(base)) => {
@@ -196,6 +203,13 @@ impl RtpH264Sender {
         {
             let buffer = buffer.get_mut().expect("a new buffer is writable");
             buffer.set_pts(running);
+            // The capture on the wall clock, for the payloader's NTP-64 header extension.
+            gst::ReferenceTimestampMeta::add(
+                buffer,
+                &ntp_timestamp_caps(),
+                ntp_time(captured_wall),
+                gst::ClockTime::NONE,
+            );
             buffer.set_duration(gst::ClockTime::from_nseconds(
                 (1e9 / self.config.rate_fps.max(1.0)) as u64,
             ));
@@ -231,6 +245,21 @@ impl Drop for RtpH264Sender {
         let _ = self.source.end_of_stream();
         let _ = self.pipeline.set_state(gst::State::Null);
     }
+}
+
+/// Adds RFC 6051's NTP-64 header extension to the payloader, at the id `rtp-h264:` receivers
+/// expect. Every packet carries it: a GStreamer 1.22 depayloader reads the extension of a
+/// frame's last packet only (1.24 aggregates them).
+fn add_capture_time_extension(pipeline: &gst::Pipeline) -> Result<(), VideoError> {
+    let payloader = pipeline
+        .by_name("payloader")
+        .ok_or_else(|| VideoError::Gstreamer("the payloader is missing".into()))?;
+    let extension = gst_rtp::RTPHeaderExtension::create_from_uri(NTP_64_EXTENSION_URI)
+        .ok_or_else(|| VideoError::Gstreamer("no RTP NTP-64 header extension".into()))?;
+    extension.set_id(u32::from(RTP_CAPTURE_TIME_EXTENSION_ID));
+    extension.set_property("every-packet", true);
+    payloader.emit_by_name::<()>("add-extension", &[&extension]);
+    Ok(())
 }
 
 /// A GStreamer call's failure, keeping its error.

@@ -1,7 +1,7 @@
 //! (feature `gstreamer`) The simulator's camera over the network as Gazebo's is: frames
 //! rendered by the simulator, encoded to RTP/H.264 and sent over UDP on localhost, come back
 //! through `--camera rtp-h264:PORT`, and the landing-marker detector finds the pad in them
-//! where it finds it in the raw frames.
+//! where it finds it in the raw frames, stamped with the capture time the sender wrote.
 #![cfg(feature = "gstreamer")]
 
 use std::net::UdpSocket;
@@ -34,6 +34,9 @@ fn centre(detector: &mut LandingMarkerDetector, image: &GrayImage) -> Option<[f6
 #[test]
 fn rendered_frames_survive_h264_over_udp_to_within_a_pixel() {
     const FRAMES: usize = 30;
+    // Longer than any loopback delivery: a receiver that stamped at arrival would be this far
+    // out at least.
+    const CAPTURE_AGE: Duration = Duration::from_millis(40);
     let port = free_port();
     // The receiver first, as a companion waits for its camera.
     let mut camera_in = runtime::camera::open(&format!("rtp-h264:{port}")).unwrap();
@@ -58,16 +61,20 @@ fn rendered_frames_survive_h264_over_udp_to_within_a_pixel() {
         .unwrap();
 
     let start = Instant::now();
-    let mut sent: Vec<(GrayImage, Instant)> = Vec::new();
-    let mut received: Vec<(GrayImage, Instant)> = Vec::new();
+    // (image, when it was handed to the sender, its capture on the test's clock)
+    let mut sent: Vec<(GrayImage, Instant, f64)> = Vec::new();
+    // (image, arrival, capture time on the test's clock as the receiver stamped it)
+    let mut received: Vec<(GrayImage, Instant, f64)> = Vec::new();
     let take = |camera_in: &mut Box<dyn runtime::camera::CameraSource>,
-                received: &mut Vec<(GrayImage, Instant)>| {
+                received: &mut Vec<(GrayImage, Instant, f64)>| {
         let now_s = start.elapsed().as_secs_f64();
         loop {
             match camera_in.next_frame(now_s) {
-                Ok(Some(captured)) => {
-                    received.push(((*captured.frame.image).clone(), Instant::now()))
-                }
+                Ok(Some(captured)) => received.push((
+                    (*captured.frame.image).clone(),
+                    Instant::now(),
+                    captured.capture_time_s,
+                )),
                 Ok(None) => break,
                 // Once the sender is done, the stream falls silent: a stall, named.
                 Err(runtime::camera::CameraSourceError::Stalled { .. })
@@ -90,9 +97,11 @@ fn rendered_frames_survive_h264_over_udp_to_within_a_pixel() {
         };
         let time_s = k as f64 / 10.0;
         let frame = camera.capture_frame(time_s, &pose, &scene).unwrap();
+        // The exposure happened CAPTURE_AGE before it is handed to the encoder.
         let captured = Instant::now();
-        sender.send(&frame.image, Duration::ZERO).unwrap();
-        sent.push(((*frame.image).clone(), captured));
+        let captured_s = start.elapsed().as_secs_f64() - CAPTURE_AGE.as_secs_f64();
+        sender.send(&frame.image, CAPTURE_AGE).unwrap();
+        sent.push(((*frame.image).clone(), captured, captured_s));
         // At the camera's 10 fps, taking what has come back meanwhile.
         while start.elapsed() < Duration::from_millis(100 * (k as u64 + 1)) {
             take(&mut camera_in, &mut received);
@@ -114,12 +123,13 @@ fn rendered_frames_survive_h264_over_udp_to_within_a_pixel() {
     let mut compared = 0;
     let mut worst_px: f64 = 0.0;
     let mut latencies_ms = Vec::new();
-    for (image, arrived) in &received {
+    let mut worst_stamp_error_ms: f64 = 0.0;
+    for (image, arrived, capture_time_s) in &received {
         // The sent frame this one is: the closest in pixels (the poses differ frame to frame).
         let (index, difference) = sent
             .iter()
             .enumerate()
-            .map(|(i, (raw, _))| (i, mean_abs_difference(raw, image)))
+            .map(|(i, (raw, _, _))| (i, mean_abs_difference(raw, image)))
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .unwrap();
         assert!(
@@ -127,6 +137,8 @@ fn rendered_frames_survive_h264_over_udp_to_within_a_pixel() {
             "frame {index}: {difference} grey levels apart"
         );
         latencies_ms.push((*arrived - sent[index].1).as_secs_f64() * 1e3);
+        let stamp_error_ms = (capture_time_s - sent[index].2).abs() * 1e3;
+        worst_stamp_error_ms = worst_stamp_error_ms.max(stamp_error_ms);
         let (Some(raw), Some(decoded)) = (
             centre(&mut detector, &sent[index].0),
             centre(&mut detector, image),
@@ -154,6 +166,15 @@ fn rendered_frames_survive_h264_over_udp_to_within_a_pixel() {
         latencies_ms[latencies_ms.len() - 1]
     );
     assert!(worst_px <= 1.0, "the pad moved {worst_px} px in H.264");
+    // The sender's capture time came across the wire (RTP's NTP-64 header extension).
+    let stats = camera_in.stats();
+    assert_eq!(stats.sender_stamped, stats.delivered, "{stats:?}");
+    assert_eq!(stats.sender_stamps_refused, 0, "{stats:?}");
+    eprintln!("capture stamp within {worst_stamp_error_ms:.2} ms of the true capture");
+    assert!(
+        worst_stamp_error_ms < 3.0,
+        "the received capture stamp is {worst_stamp_error_ms:.1} ms from the capture"
+    );
 }
 
 fn mean_abs_difference(a: &GrayImage, b: &GrayImage) -> f64 {

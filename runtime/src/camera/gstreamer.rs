@@ -6,10 +6,15 @@
 //! plane into a small queue; [`CameraSource::next_frame`] takes from that queue without
 //! blocking, so the mission loop never waits on the camera.
 //!
-//! - **Capture time.** A buffer's PTS is running time on the pipeline's clock; base time plus
-//!   running time is when it was captured (a live source stamps at capture, `udpsrc` at
-//!   arrival). Its age on that clock, subtracted from the runtime's clock when the frame is
-//!   taken, stamps the frame.
+//! - **Capture time.** The sender's own capture time where the stream carries it: a
+//!   `timestamp/x-ntp` reference timestamp on the buffer, which RTP's NTP-64 header extension
+//!   (RFC 6051, [`NTP_64_EXTENSION_URI`], written by `qosrt sim --serve`) and `rtpbin`'s
+//!   `add-reference-timestamp-meta` (from RTCP sender reports) leave there. It is wall-clock
+//!   time, so sender and receiver must share a clock (one host, or NTP/PTP between them); a
+//!   stamp in the future or older than [`MAX_SENDER_STAMP_AGE_S`] is refused and counted.
+//!   Otherwise a buffer's PTS is running time on the pipeline's clock; base time plus running
+//!   time is when it was captured (a live source stamps at capture, `udpsrc` at arrival). The
+//!   age, subtracted from the runtime's clock when the frame is taken, stamps the frame.
 //! - **Losses are counted and named** ([`CameraStats`]): frames the queue dropped because the
 //!   loop fell behind, frames older than `late_after_s` when taken, frames that are not a grey
 //!   image of the expected size ([`CameraSourceError::Malformed`]). Every sample the sink saw
@@ -23,7 +28,7 @@
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use algorithms::vision::image::GrayImage;
 use gstreamer as gst;
@@ -37,6 +42,54 @@ use crate::topics::CameraFrame;
 
 /// The appsink's name inside the pipeline.
 const SINK_NAME: &str = "qosrt_camera_sink";
+
+/// RFC 6051's 64-bit NTP timestamp RTP header extension: the sender's capture time per frame.
+pub const NTP_64_EXTENSION_URI: &str = "urn:ietf:params:rtp-hdrext:ntp-64";
+
+/// A sender's capture stamp older than this is a clock that is not synchronised, not a frame.
+pub const MAX_SENDER_STAMP_AGE_S: f64 = 10.0;
+
+/// Seconds from the NTP epoch (1900-01-01) to the UNIX epoch (1970-01-01), RFC 5905.
+const NTP_TO_UNIX_S: u64 = 2_208_988_800;
+
+/// The caps that mark a reference timestamp as NTP time (GStreamer's convention).
+pub fn ntp_timestamp_caps() -> gst::Caps {
+    gst::Caps::new_empty_simple("timestamp/x-ntp")
+}
+
+/// A wall-clock instant as NTP time (since 1900), as a `timestamp/x-ntp` reference carries it.
+pub fn ntp_time(at: SystemTime) -> gst::ClockTime {
+    let since_unix = at.duration_since(UNIX_EPOCH).unwrap_or_default();
+    gst::ClockTime::from_nseconds(since_unix.as_nanos() as u64 + NTP_TO_UNIX_S * 1_000_000_000)
+}
+
+/// NTP time (since 1900) as a wall-clock instant; `None` before the UNIX epoch.
+fn system_time_of_ntp(ntp: gst::ClockTime) -> Option<SystemTime> {
+    let since_unix_ns = ntp.nseconds().checked_sub(NTP_TO_UNIX_S * 1_000_000_000)?;
+    Some(UNIX_EPOCH + Duration::from_nanos(since_unix_ns))
+}
+
+/// What a buffer's sender capture stamp says.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum SenderStamp {
+    /// No `timestamp/x-ntp` reference on the buffer.
+    Absent,
+    /// Captured this long ago.
+    Age(Duration),
+    /// In the future or older than [`MAX_SENDER_STAMP_AGE_S`]: the clocks disagree.
+    Refused,
+}
+
+/// The age of a sender's NTP capture stamp at `now` (wall clock).
+fn sender_stamp_age(stamp: Option<gst::ClockTime>, now: SystemTime) -> SenderStamp {
+    let Some(stamp) = stamp else {
+        return SenderStamp::Absent;
+    };
+    match system_time_of_ntp(stamp).map(|captured| now.duration_since(captured)) {
+        Some(Ok(age)) if age.as_secs_f64() <= MAX_SENDER_STAMP_AGE_S => SenderStamp::Age(age),
+        _ => SenderStamp::Refused,
+    }
+}
 
 /// How a pipeline is read.
 #[derive(Debug, Clone, PartialEq)]
@@ -86,6 +139,8 @@ struct Shared {
     queue: VecDeque<Arrived>,
     samples: u64,
     dropped: u64,
+    sender_stamped: u64,
+    sender_stamps_refused: u64,
     /// Unparked at each frame (the runtime's loop, so it takes the frame at once).
     waker: Option<std::thread::Thread>,
 }
@@ -165,9 +220,19 @@ impl GstreamerSource {
             gst_app::AppSinkCallbacks::builder()
                 .new_sample(move |sink| {
                     let sample = sink.pull_sample().map_err(|_| gst::FlowError::Eos)?;
-                    let captured_at = Instant::now() - sample_age(sink, &sample);
+                    let sender_stamp = sender_stamp_age(ntp_reference(&sample), SystemTime::now());
+                    let age = match sender_stamp {
+                        SenderStamp::Age(age) => age,
+                        SenderStamp::Absent | SenderStamp::Refused => sample_age(sink, &sample),
+                    };
+                    let captured_at = Instant::now() - age;
                     let image = gray_image(&sample);
                     let mut shared = lock(&callback_shared);
+                    match sender_stamp {
+                        SenderStamp::Age(_) => shared.sender_stamped += 1,
+                        SenderStamp::Refused => shared.sender_stamps_refused += 1,
+                        SenderStamp::Absent => {}
+                    }
                     let frame_index = shared.samples;
                     shared.samples += 1;
                     if shared.queue.len() >= queue_frames {
@@ -248,6 +313,8 @@ impl CameraSource for GstreamerSource {
         let arrived = {
             let mut shared = lock(&self.shared);
             self.stats.dropped = shared.dropped;
+            self.stats.sender_stamped = shared.sender_stamped;
+            self.stats.sender_stamps_refused = shared.sender_stamps_refused;
             shared.queue.pop_front()
         };
         let Some(arrived) = arrived else {
@@ -312,7 +379,10 @@ impl CameraSource for GstreamerSource {
 
     fn stats(&self) -> CameraStats {
         let mut stats = self.stats;
-        stats.dropped = lock(&self.shared).dropped;
+        let shared = lock(&self.shared);
+        stats.dropped = shared.dropped;
+        stats.sender_stamped = shared.sender_stamped;
+        stats.sender_stamps_refused = shared.sender_stamps_refused;
         stats
     }
 }
@@ -325,6 +395,16 @@ impl Drop for GstreamerSource {
 
 fn lock(shared: &Mutex<Shared>) -> MutexGuard<'_, Shared> {
     shared.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// The sender's capture time on the sample's buffer: a `timestamp/x-ntp` reference timestamp.
+fn ntp_reference(sample: &gst::Sample) -> Option<gst::ClockTime> {
+    let ntp = ntp_timestamp_caps();
+    let buffer = sample.buffer()?;
+    buffer
+        .iter_meta::<gst::ReferenceTimestampMeta>()
+        .find(|meta| meta.reference().can_intersect(&ntp))
+        .map(|meta| meta.timestamp())
 }
 
 /// How long ago the sample was captured, on the pipeline's clock: now − (base time + running
@@ -443,3 +523,44 @@ fn describe_error(error: &gst::message::Error) -> String {
 }
 
 // Tested against real pipelines in `runtime/tests/gstreamer_camera.rs`.
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ntp_time_counts_from_1900() {
+        // 2000-01-01T00:00:00Z is 946_684_800 s after the UNIX epoch; NTP era 0 puts it at
+        // 3_155_673_600 s (RFC 5905's table of epochs).
+        let y2k = UNIX_EPOCH + Duration::from_secs(946_684_800);
+        assert_eq!(ntp_time(y2k).seconds(), 3_155_673_600);
+        let instant = y2k + Duration::from_nanos(123_456_789);
+        assert_eq!(system_time_of_ntp(ntp_time(instant)), Some(instant));
+        // A zero stamp (a sender with the extension but no capture time) is before 1970.
+        assert_eq!(system_time_of_ntp(gst::ClockTime::ZERO), None);
+    }
+
+    #[test]
+    fn sender_stamps_from_the_future_or_the_distant_past_are_refused() {
+        let now = UNIX_EPOCH + Duration::from_secs(1_800_000_000);
+        let stamp = |at: SystemTime| Some(ntp_time(at));
+        assert_eq!(sender_stamp_age(None, now), SenderStamp::Absent);
+        assert_eq!(
+            sender_stamp_age(stamp(now - Duration::from_millis(35)), now),
+            SenderStamp::Age(Duration::from_millis(35))
+        );
+        assert_eq!(
+            sender_stamp_age(stamp(now + Duration::from_millis(1)), now),
+            SenderStamp::Refused
+        );
+        let too_old = Duration::from_secs_f64(MAX_SENDER_STAMP_AGE_S + 1.0);
+        assert_eq!(
+            sender_stamp_age(stamp(now - too_old), now),
+            SenderStamp::Refused
+        );
+        assert_eq!(
+            sender_stamp_age(Some(gst::ClockTime::ZERO), now),
+            SenderStamp::Refused
+        );
+    }
+}

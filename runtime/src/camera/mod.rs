@@ -22,7 +22,7 @@ pub mod gstreamer;
 mod spec;
 
 pub use folder::{load_gray, ImageFolderConfig, ImageFolderSource};
-pub use spec::{open, CameraSpec, DEFAULT_FOLDER_FPS};
+pub use spec::{open, CameraSpec, DEFAULT_FOLDER_FPS, RTP_CAPTURE_TIME_EXTENSION_ID};
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -101,6 +101,11 @@ pub struct CameraStats {
     pub malformed: u64,
     /// Times the source fell silent for longer than its stall bound.
     pub stalls: u64,
+    /// Frames stamped with the sender's own capture time (RTP's NTP-64 header extension, RTCP).
+    pub sender_stamped: u64,
+    /// Sender capture stamps refused (in the future or too old: the clocks are not in sync);
+    /// those frames are stamped at arrival.
+    pub sender_stamps_refused: u64,
 }
 
 /// A frame with the time its exposure was taken, on the runtime's clock: the tracker's delay

@@ -126,14 +126,21 @@ impl CameraSpec {
 /// Receives RTP/H.264 on a UDP port: the caps PX4's Gazebo camera documentation gives for
 /// port 5600. The jitter buffer stamps each frame from its RTP timestamp (the sender's capture
 /// clock, skew-corrected) rather than its arrival: frames that arrive bunched together keep
-/// their true spacing, which the tracker's velocity estimate depends on.
+/// their true spacing, which the tracker's velocity estimate depends on. Extension id 1 is
+/// RFC 6051's NTP-64 capture time, which `qosrt sim --serve` writes; the depayloader leaves it
+/// on the frame and the camera source stamps the frame with it (a sender without it is
+/// stamped as before).
 pub fn rtp_h264_pipeline(port: u16) -> String {
     format!(
         "udpsrc port={port} caps=\"application/x-rtp,media=video,clock-rate=90000,\
-         encoding-name=H264,payload=96\" ! rtpjitterbuffer latency={RTP_JITTER_LATENCY_MS} \
+         encoding-name=H264,payload=96,extmap-{RTP_CAPTURE_TIME_EXTENSION_ID}=(string)\
+         urn:ietf:params:rtp-hdrext:ntp-64\" ! rtpjitterbuffer latency={RTP_JITTER_LATENCY_MS} \
          ! rtph264depay ! h264parse ! avdec_h264 ! videoconvert"
     )
 }
+
+/// The RTP header extension id that carries the capture time (NTP-64) on `rtp-h264:` streams.
+pub const RTP_CAPTURE_TIME_EXTENSION_ID: u8 = 1;
 
 /// The jitter buffer's wait for late packets: enough for a loopback or wired link.
 pub const RTP_JITTER_LATENCY_MS: u32 = 30;
