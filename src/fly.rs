@@ -59,6 +59,8 @@ struct FlightReport<'a> {
     capture_to_setpoint: runtime::scheduler::DurationSummary,
     /// From the frame's arrival at the runtime to that setpoint: the runtime's own delay (µs).
     delivered_to_setpoint: runtime::scheduler::DurationSummary,
+    /// The autopilot's clock from TIMESYNC: offset (autopilot minus runtime) and round trip (ns).
+    autopilot_clock: runtime::link::ClockSyncStats,
     finished: bool,
 }
 
@@ -319,11 +321,15 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
             camera: runner.camera_stats(),
             capture_to_setpoint: log.capture_to_setpoint(),
             delivered_to_setpoint: log.delivered_to_setpoint(),
+            autopilot_clock: runner.link().clock_sync_stats(),
             finished: runner.status().finished,
         };
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
-        print!("{}", summary(log, &stats, wall_s));
+        print!(
+            "{}",
+            summary(log, &stats, &runner.link().clock_sync_stats(), wall_s)
+        );
     }
     Ok(if timed_out {
         ExitCode::from(EXIT_LANDING_TIMEOUT)
@@ -370,7 +376,12 @@ pub fn parse_signing_key(bytes: &[u8]) -> Result<[u8; 32], KeyFormatError> {
     Ok(key)
 }
 
-fn summary(log: &MissionLog, stats: &[TaskStats], wall_s: f64) -> String {
+fn summary(
+    log: &MissionLog,
+    stats: &[TaskStats],
+    clock: &runtime::link::ClockSyncStats,
+    wall_s: f64,
+) -> String {
     let mut out = format!(
         "qosrt run: {:.1} s with {}; {} frames ({} lost)\n",
         wall_s,
@@ -388,6 +399,15 @@ fn summary(log: &MissionLog, stats: &[TaskStats], wall_s: f64) -> String {
             latency.count,
             delivered.p50_us * 1e-3,
             delivered.p99_us * 1e-3,
+        );
+    }
+    if let (Some(offset_ns), Some(round_trip_ns)) = (clock.offset_ns, clock.round_trip_ns) {
+        out += &format!(
+            "autopilot clock: {:+.3} s from the runtime's, to within {:.2} ms ({} of {} TIMESYNC answered)\n",
+            offset_ns as f64 * 1e-9,
+            round_trip_ns as f64 * 0.5e-6,
+            clock.replies,
+            clock.requests
         );
     }
     if let Some(last) = log.battery.last {

@@ -90,6 +90,25 @@ fn flies_px4_through_offboard_and_lands_it_with_auto_land() {
         "{battery} BATTERY_STATUS in {wall_s} s"
     );
     assert!(report["battery"]["samples"].as_u64().unwrap() > 10);
+    // SIH keeps to the wall clock.
+    assert_tracked_the_autopilots_clock(&report, 0.9..=1.1);
+}
+
+/// The link asked the autopilot's clock over TIMESYNC and the autopilot answered; its clock
+/// ran at a rate within `rate_range` of the runtime's (a SITL's `--speedup`).
+fn assert_tracked_the_autopilots_clock(report: &Value, rate_range: std::ops::RangeInclusive<f64>) {
+    let clock = &report["autopilot_clock"];
+    let number = |key: &str| {
+        clock[key]
+            .as_i64()
+            .unwrap_or_else(|| panic!("{key}: {clock}"))
+    };
+    assert!(number("replies") >= 3, "{clock}");
+    // The autopilot's clock counts from its boot, before qosrt started counting.
+    assert!(number("offset_ns") > 0, "{clock}");
+    assert!(number("round_trip_ns") < 50_000_000, "{clock}");
+    let rate = clock["rate"].as_f64().unwrap();
+    assert!(rate_range.contains(&rate), "{clock}");
 }
 
 #[test]
@@ -309,6 +328,8 @@ fn flies_ardupilot_through_guided_and_lands_it_with_land() {
     let events = event_lines(&report);
     assert_eq!(report["autopilot"], "ArduPilot", "{stderr}");
     assert_eq!(report["finished"], true, "{events:?}\n{stderr}");
+    // Started at 5× real time: up to 5×, slower when this machine cannot keep up.
+    assert_tracked_the_autopilots_clock(&report, 1.5..=5.5);
     for wanted in [
         "armed",
         "took off",

@@ -144,6 +144,12 @@ fn assert_flew_by_vision(run: &Value, stderr: &str) {
         "{run:#}"
     );
     assert_eq!(run["camera"]["malformed"], 0);
+    // Every frame carried the world's capture time (RTP's NTP-64 header extension).
+    assert_eq!(
+        run["camera"]["sender_stamped"], run["camera"]["delivered"],
+        "{:#}",
+        run["camera"]
+    );
     let latency = &run["capture_to_setpoint"];
     assert!(latency["count"].as_u64().unwrap() > 20, "{latency}");
     eprintln!(

@@ -217,6 +217,9 @@ pub struct Incoming {
     pub unsigned: usize,
     /// The sender, for UDP.
     pub from: Option<SocketAddr>,
+    /// When the link took it, on the runtime's clock (set by the link; a recording keeps it,
+    /// so a replay measures the TIMESYNC round trips the flight measured).
+    pub received_s: Option<f64>,
 }
 
 /// An open connection.
@@ -340,6 +343,11 @@ impl Transport {
         }
     }
 
+    /// Whether this is a recording played back.
+    pub fn is_replay(&self) -> bool {
+        matches!(self, Self::Replay(_))
+    }
+
     /// Whether a message sent now has somewhere to go (udpin: once the autopilot is heard).
     pub fn has_peer(&self) -> bool {
         match self {
@@ -447,7 +455,7 @@ impl UdpTransport {
                 malformed: messages.is_empty(),
                 messages,
                 from: Some(from),
-                unsigned: 0,
+                ..Incoming::default()
             }));
         };
         // Valid frames whose signature does not check out are counted apart from garbage.
@@ -457,6 +465,7 @@ impl UdpTransport {
             unsigned: messages.len().saturating_sub(signed.len()),
             messages: signed,
             from: Some(from),
+            received_s: None,
         }))
     }
 

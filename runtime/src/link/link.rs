@@ -18,13 +18,20 @@
 //! sides see the same messages at the same simulated time on every run.
 //!
 //! **Not lockstep** (real autopilot): TIMESYNC requests (tc1 = 0) are answered with
-//! tc1 = own clock in ns and ts1 echoed, and used for nothing else.
+//! tc1 = own clock in ns and ts1 echoed (PX4 converts the companion's timestamps with them).
+//! The link asks the autopilot in turn, once every `timesync_period_s`, and tracks the
+//! autopilot's clock ([`ClockSync`]): LANDING_TARGET carries the capture in that clock. A poll
+//! that sends a request waits up to `timesync_wait_s` for its reply (processing whatever comes
+//! meanwhile), so the round trip is measured, not the mission loop's period; each batch is
+//! stamped when taken ([`Incoming::received_s`]), and a recording keeps the stamps, so a
+//! replay measures the same round trips.
 
 use super::connection::{ConnectionSpec, Incoming, ReplayFeed, Transport};
 use super::mapping::{
     command_message, companion_heartbeat, AutopilotKind, AutopilotStatus, CommandAck,
     CommandTarget, TelemetryState, VehicleCommand,
 };
+use super::timesync::{ClockSync, ClockSyncStats};
 use super::LinkError;
 use crate::telemetry::BatteryTelemetry;
 use crate::topics::VehicleState;
@@ -59,6 +66,10 @@ pub struct LinkConfig {
     pub target_component_id: u8,
     /// MAVLink 2 signing: sign what is sent, refuse what is not signed with this key.
     pub signing_key: Option<[u8; 32]>,
+    /// How often the link asks the autopilot's clock (TIMESYNC); not in lockstep.
+    pub timesync_period_s: f64,
+    /// How long a poll that asked waits for the answer (the round trip's resolution).
+    pub timesync_wait_s: f64,
 }
 
 impl Default for LinkConfig {
@@ -72,6 +83,8 @@ impl Default for LinkConfig {
             target_system_id: None,
             target_component_id: 1,
             signing_key: None,
+            timesync_period_s: 1.0,
+            timesync_wait_s: 0.005,
         }
     }
 }
@@ -164,6 +177,10 @@ pub struct MavlinkLink {
     received_by_type: std::collections::BTreeMap<&'static str, u64>,
     /// What was received and sent since the recorder last took it, while one records.
     capture: Option<LinkCapture>,
+    /// The autopilot's clock, from the TIMESYNC exchange.
+    clock_sync: ClockSync,
+    /// When the current poll began, to stamp what it takes.
+    poll_started: Instant,
 }
 
 /// What the link received (every batch, as it came) and sent, for a recorder.
@@ -236,6 +253,8 @@ impl MavlinkLink {
             stats: LinkStats::default(),
             received_by_type: std::collections::BTreeMap::new(),
             capture: None,
+            clock_sync: ClockSync::new(config.timesync_period_s),
+            poll_started: Instant::now(),
         }
     }
 
@@ -271,9 +290,12 @@ impl MavlinkLink {
         self.telemetry.vehicle_state(self.now_s)
     }
 
-    /// Drains what has arrived without blocking; `now_s` is the runtime's monotonic clock.
+    /// Drains what has arrived without blocking (but for a TIMESYNC request's reply, up to
+    /// `timesync_wait_s`); `now_s` is the runtime's monotonic clock.
     pub fn poll(&mut self, now_s: f64) -> LinkUpdate {
         self.now_s = now_s;
+        self.poll_started = Instant::now();
+        let asked = self.request_autopilot_time(now_s);
         let mut update = self.empty_update();
         for _ in 0..MAX_DATAGRAMS_PER_POLL {
             match self.transport.receive(None) {
@@ -287,7 +309,63 @@ impl MavlinkLink {
                 }
             }
         }
+        // A recording holds what the wait took in the step's own batches, drained above.
+        if let Some(ts1_ns) = asked.filter(|_| !self.transport.is_replay()) {
+            let wait = Duration::from_secs_f64(self.config.timesync_wait_s.max(0.0));
+            while self.clock_sync.is_pending(ts1_ns) {
+                let remaining = wait.saturating_sub(self.poll_started.elapsed());
+                if remaining.is_zero() {
+                    break;
+                }
+                match self.transport.receive(Some(remaining)) {
+                    Ok(Some(incoming)) => {
+                        self.process(incoming, &mut update, None);
+                    }
+                    Ok(None) => {}
+                    Err(error) => {
+                        tracing::warn!(%error, "MAVLink receive failed");
+                        break;
+                    }
+                }
+            }
+        }
         self.finish_poll(now_s, update)
+    }
+
+    /// Sends a TIMESYNC request when one is due and the autopilot is known; its ts1.
+    fn request_autopilot_time(&mut self, now_s: f64) -> Option<i64> {
+        let target_system = self.config.target_system_id?;
+        if !self.transport.has_peer() || self.config.timesync_period_s <= 0.0 {
+            return None;
+        }
+        let ts1 = self.clock_sync.request_if_due(now_s)?;
+        let request = MavMessage::TIMESYNC(TIMESYNC_DATA {
+            tc1: 0,
+            ts1,
+            target_system,
+            target_component: self.config.target_component_id,
+        });
+        match self.send_message(&request) {
+            Ok(_) => Some(ts1),
+            Err(error) => {
+                tracing::warn!(%error, "TIMESYNC request failed");
+                None
+            }
+        }
+    }
+
+    /// The autopilot's clock as the TIMESYNC exchange found it.
+    pub fn clock_sync(&self) -> &ClockSync {
+        &self.clock_sync
+    }
+
+    /// `time_s` on the runtime's clock in microseconds on the autopilot's, once known.
+    pub fn autopilot_time_us(&self, time_s: f64) -> Option<u64> {
+        self.clock_sync.autopilot_time_us(time_s)
+    }
+
+    pub fn clock_sync_stats(&self) -> ClockSyncStats {
+        self.clock_sync.stats()
     }
 
     /// Lockstep: processes everything up to the autopilot's TIMESYNC { tc1: 0, ts1: t_ns },
@@ -395,10 +473,16 @@ impl MavlinkLink {
     /// `lockstep` is set and the datagram held one.
     fn process(
         &mut self,
-        incoming: Incoming,
+        mut incoming: Incoming,
         update: &mut LinkUpdate,
         lockstep: Option<u64>,
     ) -> Option<u64> {
+        // Stamped when taken: the poll's time plus how long the poll has run (a replay keeps
+        // the recorded stamp; lockstep time does not advance within a poll).
+        let received_s = *incoming.received_s.get_or_insert_with(|| match lockstep {
+            Some(_) => self.now_s,
+            None => self.now_s + self.poll_started.elapsed().as_secs_f64(),
+        });
         if let Some(capture) = &mut self.capture {
             capture.received.push(incoming.clone());
         }
@@ -444,7 +528,10 @@ impl MavlinkLink {
                 .or_default() += 1;
             update.messages += 1;
             if let MavMessage::TIMESYNC(timesync) = &message {
-                if timesync.tc1 == 0 {
+                if timesync.tc1 != 0 && lockstep.is_none() {
+                    self.clock_sync
+                        .on_reply(timesync.tc1, timesync.ts1, received_s);
+                } else if timesync.tc1 == 0 {
                     if lockstep.is_some() {
                         barrier = Some(timesync.ts1.max(0) as u64);
                     } else {

@@ -7,6 +7,7 @@ pub mod connection;
 #[allow(clippy::module_inception)]
 pub mod link;
 pub mod mapping;
+pub mod timesync;
 
 pub use connection::{ConnectionSpec, Incoming, ReplayFeed};
 pub use link::{
@@ -17,6 +18,7 @@ pub use mapping::{
     AckResult, AutopilotKind, AutopilotMode, AutopilotStatus, CommandAck, SetpointSequencer,
     VehicleCommand,
 };
+pub use timesync::{ClockSync, ClockSyncStats};
 
 /// What can go wrong with the link.
 #[derive(Debug, thiserror::Error)]

@@ -612,7 +612,11 @@ impl<S: TaskScheduler> MissionRunner<S> {
             distance_m: body.norm(),
             size_x_rad: 0.0,
             size_y_rad: 0.0,
-            time_usec: (fix_s.max(0.0) * 1e6) as u64,
+            // The capture in the autopilot's clock once TIMESYNC has found it, else in ours.
+            time_usec: self
+                .link
+                .autopilot_time_us(fix_s)
+                .unwrap_or((fix_s.max(0.0) * 1e6) as u64),
         })
     }
 

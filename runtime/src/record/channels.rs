@@ -202,6 +202,9 @@ pub struct MavlinkBatch {
     pub frames: Vec<String>,
     pub malformed: bool,
     pub unsigned: usize,
+    /// When the link took the batch (recordings before it was kept have none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub received_s: Option<f64>,
 }
 
 /// One message the link sent.
@@ -229,6 +232,7 @@ impl MavlinkBatch {
                 .collect(),
             malformed: incoming.malformed,
             unsigned: incoming.unsigned,
+            received_s: incoming.received_s,
         }
     }
 
@@ -250,6 +254,7 @@ impl MavlinkBatch {
             malformed: self.malformed,
             unsigned: self.unsigned,
             from: None,
+            received_s: self.received_s,
         })
     }
 }
@@ -549,12 +554,14 @@ mod tests {
             malformed: false,
             unsigned: 2,
             from: None,
+            received_s: Some(12.345_678_9),
         };
         let batch = MavlinkBatch::from_incoming(&incoming);
         let json = serde_json::to_string(&batch).unwrap();
         let back: MavlinkBatch = serde_json::from_str(&json).unwrap();
         let decoded = back.to_incoming().unwrap();
         assert_eq!(decoded.unsigned, 2);
+        assert_eq!(decoded.received_s, Some(12.345_678_9));
         let (got_header, MavMessage::ATTITUDE(got)) = &decoded.messages[0] else {
             panic!("not an ATTITUDE: {decoded:?}");
         };
@@ -570,6 +577,7 @@ mod tests {
             frames: vec!["fd01".into(), "zz".into()],
             malformed: false,
             unsigned: 0,
+            received_s: None,
         };
         let error = batch.to_incoming().unwrap_err();
         assert!(error.to_string().starts_with("frame 0:"), "{error}");

@@ -66,7 +66,12 @@ fn poll_until(link: &mut MavlinkLink, now_s: f64, done: impl Fn(&MavlinkLink) ->
 
 #[test]
 fn link_answers_timesync_requests_and_sends_its_heartbeat() {
-    let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+    // Not asking the autopilot's clock itself: only its own answers go out.
+    let config = LinkConfig {
+        timesync_period_s: 0.0,
+        ..LinkConfig::default()
+    };
+    let mut link = MavlinkLink::bind_local_ephemeral(config).unwrap();
     assert_eq!(link.status(), LinkStatus::Connecting);
     assert_eq!(link.failsafe_action(), FailsafeAction::StopSetpoints);
     let autopilot = RawAutopilot::new(link.local_addr().unwrap(), 1);
@@ -96,6 +101,52 @@ fn link_answers_timesync_requests_and_sends_its_heartbeat() {
             target_component: 1,
         })]
     );
+}
+
+#[test]
+fn link_tracks_the_autopilots_clock_over_timesync() {
+    // The autopilot's clock runs 1000.25 s ahead of the runtime's; it answers each request
+    // from its own thread, as a real one does.
+    const OFFSET_NS: i64 = 1_000_250_000_000;
+    let mut link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+    let autopilot = RawAutopilot::new(link.local_addr().unwrap(), 1);
+    autopilot.send(&px4_heartbeat());
+    poll_until(&mut link, 0.0, |link| {
+        link.telemetry().autopilot().is_some()
+    });
+    let answering = std::thread::spawn(move || {
+        let mut answered = 0;
+        while answered < 4 {
+            for message in autopilot.receive() {
+                if let MavMessage::TIMESYNC(request) = message {
+                    assert_eq!(request.tc1, 0, "the link asks, it does not answer here");
+                    assert_eq!((request.target_system, request.target_component), (1, 1));
+                    autopilot.send(&MavMessage::TIMESYNC(TIMESYNC_DATA {
+                        tc1: request.ts1 + OFFSET_NS,
+                        ts1: request.ts1,
+                        ..Default::default()
+                    }));
+                    answered += 1;
+                }
+            }
+        }
+    });
+    // The mission loop polls every 20 ms of wall time; one request a second of runtime time.
+    for k in 1..=4 {
+        link.poll(k as f64);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    answering.join().unwrap();
+    let stats = link.clock_sync_stats();
+    assert_eq!((stats.requests, stats.replies), (4, 4), "{stats:?}");
+    // The reply was waited for: the round trip is the link's, not the loop's 20 ms.
+    let round_trip_ns = stats.round_trip_ns.unwrap();
+    assert!(round_trip_ns < 5_000_000, "{stats:?}");
+    // The autopilot read its clock as the request left: the estimate is off by half the trip.
+    let error_ns = (stats.offset_ns.unwrap() - OFFSET_NS).abs();
+    assert!(error_ns <= round_trip_ns / 2 + 1, "{stats:?}");
+    let there_us = link.autopilot_time_us(10.0).unwrap() as i64;
+    assert!((there_us - (10_000_000 + OFFSET_NS / 1000)).abs() <= round_trip_ns / 2000 + 1);
 }
 
 #[test]
