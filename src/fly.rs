@@ -61,6 +61,9 @@ struct FlightReport<'a> {
     delivered_to_setpoint: runtime::scheduler::DurationSummary,
     /// The autopilot's clock from TIMESYNC: offset (autopilot minus runtime) and round trip (ns).
     autopilot_clock: runtime::link::ClockSyncStats,
+    /// Messages a second on the topics that trigger tasks, as the governor prices them
+    /// (declared in the config, then measured over ten seconds).
+    input_rates: &'a runtime::energy::InputRates,
     finished: bool,
 }
 
@@ -322,6 +325,7 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
             capture_to_setpoint: log.capture_to_setpoint(),
             delivered_to_setpoint: log.delivered_to_setpoint(),
             autopilot_clock: runner.link().clock_sync_stats(),
+            input_rates: runner.input_rates(),
             finished: runner.status().finished,
         };
         println!("{}", serde_json::to_string_pretty(&report)?);

@@ -232,6 +232,24 @@ const BAD_CASES: &[BadCase] = &[
         expect: &[at("\"tracking\"\nplugin = \"landing_guidance\"", 0, "task `tracking` is defined twice")],
     },
     BadCase {
+        name: "a camera with no frames",
+        replace: &[("[battery]", "[camera]\nrate_fps = -10.0\n\n[battery]")],
+        expect: &[at(
+            "-10.0",
+            0,
+            "the camera's rate_fps must be a finite number > 0, found -10",
+        )],
+    },
+    BadCase {
+        name: "misspelt camera key",
+        replace: &[("[battery]", "[camera]\nrate_fsp = 10.0\n\n[battery]")],
+        expect: &[at(
+            "rate_fsp",
+            0,
+            "unknown key `rate_fsp` in [camera]; did you mean `rate_fps`?",
+        )],
+    },
+    BadCase {
         name: "negative phase duration",
         replace: &[("duration_s = 900.0", "duration_s = -900.0")],
         expect: &[at("-900.0", 0, "duration_s must be a finite number > 0, found -900")],

@@ -10,7 +10,13 @@ use power_models::planner::{
     solve, DurationByLevel, PlanError, PlanPhase, PlanProblem, PlanTask, PowerTerm,
 };
 use power_models::profile::Profile;
+use std::collections::BTreeMap;
 use std::path::PathBuf;
+
+/// Messages a second on the topics that trigger tasks (`camera/frame` → 10.0): what caps a
+/// triggered task's rate below its level. Declared (`[camera] rate_fps`) for a plan; measured
+/// in flight.
+pub type InputRates = BTreeMap<String, f64>;
 
 /// What a mission may spend: the pack's usable energy, rated at the most demanding plan's
 /// mean power (a pack delivers less the harder it is driven, so this is on the safe side for
@@ -229,8 +235,27 @@ impl MissionModel {
     /// tables over the levels of the tasks each profile models.
     ///
     /// A task that does not run in a phase but appears in its profile is held at the profile's
-    /// lowest measured value, the measured state closest to not running.
+    /// lowest measured value, the measured state closest to not running. A triggered task is
+    /// priced at the rate it runs at with the declared input rates ([`Self::declared_input_rates`]).
     pub fn plan_problem(&self) -> PlanProblem {
+        self.plan_problem_at(&self.declared_input_rates())
+    }
+
+    /// The input rates the config declares: the camera's `rate_fps` on `camera/frame`.
+    pub fn declared_input_rates(&self) -> InputRates {
+        let camera_rate = self.config.camera.as_ref().and_then(|c| c.rate_fps);
+        camera_rate
+            .map(|rate_fps| (crate::config::CAMERA_FRAME_TOPIC.to_string(), rate_fps))
+            .into_iter()
+            .collect()
+    }
+
+    /// [`Self::plan_problem`] with each triggered task priced at the rate it runs at when its
+    /// trigger's topic delivers at `input_rates` ([`TaskConfig::running_knob_value`]); a
+    /// topic without a rate leaves its tasks at their levels.
+    ///
+    /// [`TaskConfig::running_knob_value`]: crate::config::TaskConfig::running_knob_value
+    pub fn plan_problem_at(&self, input_rates: &InputRates) -> PlanProblem {
         let config = &self.config;
         let tasks = config
             .tasks
@@ -263,7 +288,8 @@ impl MissionModel {
                 let mut base_power_w = idle_w;
                 let mut terms = Vec::new();
                 for loaded_profile in phase_profiles {
-                    let (term_tasks, power_w) = self.power_table(loaded_profile, &active_tasks);
+                    let (term_tasks, power_w) =
+                        self.power_table(loaded_profile, &active_tasks, input_rates);
                     let above_idle = power_w.iter().map(|p| p - idle_w);
                     if term_tasks.is_empty() {
                         base_power_w += above_idle.sum::<f64>();
@@ -299,6 +325,7 @@ impl MissionModel {
         &self,
         loaded: &LoadedProfile,
         active_tasks: &[usize],
+        input_rates: &InputRates,
     ) -> (Vec<usize>, Vec<f64>) {
         let config = &self.config;
         let axes = loaded.model.axes();
@@ -329,7 +356,14 @@ impl MissionModel {
                 .map(|(axis, task)| match task {
                     Some(t) => {
                         let position = term_tasks.iter().position(|x| x == t).unwrap_or(0);
-                        config.tasks[*t].levels[levels[position]]
+                        let task = &config.tasks[*t];
+                        let input_rate = task.trigger.input().and_then(|i| input_rates.get(i));
+                        let value = task
+                            .running_knob_value(task.levels[levels[position]], input_rate.copied());
+                        // A task that never runs (no input, no idle runs) costs the axis's
+                        // cheapest end, as clamping an infinite period would give.
+                        let (low, high) = (axes[axis][0], axes[axis][axes[axis].len() - 1]);
+                        value.clamp(low.min(high), low.max(high))
                     }
                     None => axes[axis][0],
                 })
@@ -498,6 +532,60 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_triggered_task_is_priced_at_the_rate_its_input_lets_it_run() {
+        let model = reference_model();
+        let tasks = &model.config.tasks;
+        let index = |name: &str| tasks.iter().position(|t| t.name == name).unwrap();
+        let (detection, hazard) = (index("detection"), index("hazard"));
+        let phase = |problem: &PlanProblem, name: &str| {
+            problem
+                .phases
+                .iter()
+                .find(|p| p.name == name)
+                .unwrap()
+                .clone()
+        };
+        let camera_at = |rate_fps: f64| -> InputRates {
+            [("camera/frame".to_string(), rate_fps)]
+                .into_iter()
+                .collect()
+        };
+        // A 4 fps camera: the landing phase's detector (triggered by frames) runs at most at
+        // 4 fps whatever its level; its profile (landing.toml) read at that rate.
+        let landing = phase(&model.plan_problem_at(&camera_at(4.0)), "landing");
+        assert_eq!(landing.terms[0].tasks, vec![detection]);
+        let landing_profile = &model.profiles[1].model;
+        for (level, &level_fps) in tasks[detection].levels.iter().enumerate() {
+            let runs_at_fps = level_fps.min(4.0);
+            let expected = landing_profile.eval(&[runs_at_fps]).value;
+            assert_eq!(landing.terms[0].power_w[level], expected, "level {level}");
+        }
+        // Without a camera rate the top level is priced at its 10 fps, which costs more.
+        let unlimited = phase(&model.plan_problem(), "landing");
+        assert!(unlimited.terms[0].power_w[3] > landing.terms[0].power_w[3]);
+        // A silent camera: the hazard CNN still runs once a second on its own (max_idle_ms
+        // 1000), so its top level (4 fps) costs what 1 fps does; in transit the profile's
+        // detection knob sits at its lowest, 0.5 fps.
+        let transit = phase(&model.plan_problem_at(&camera_at(0.0)), "transit");
+        let tracking_profile = &model.profiles[0].model;
+        assert_eq!(transit.terms[0].tasks, vec![hazard]);
+        assert_eq!(
+            transit.terms[0].power_w[3],
+            tracking_profile.eval(&[1.0, 0.5]).value
+        );
+        assert_eq!(
+            transit.terms[0].power_w[0],
+            tracking_profile.eval(&[0.1, 0.5]).value
+        );
+        // Declared in the config, the same rate prices the plan `qosrt plan` makes.
+        let mut declared = model.clone();
+        declared.config.camera = Some(crate::config::CameraSettings {
+            rate_fps: Some(4.0),
+        });
+        assert_eq!(phase(&declared.plan_problem(), "landing"), landing);
     }
 
     #[test]

@@ -222,27 +222,7 @@ fn the_companion_energy_is_what_each_phase_ran() {
     // The board's measured power (profiles/jetson-nano-seed): transit runs the hazard CNN at
     // 4 fps, its detector not running (the profile's lowest rate, 0.5 fps, is its nearest
     // measured state); tracking runs both at 4 and 10 fps; landing the detector at 10 fps.
-    let sample = |file: &str, knobs: &[f64]| -> f64 {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../profiles/jetson-nano-seed")
-            .join(file);
-        let profile: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
-        profile["sample"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|s| {
-                let values: Vec<f64> = s["knobs"]
-                    .as_array()
-                    .unwrap()
-                    .iter()
-                    .map(|v| v.as_float().unwrap())
-                    .collect();
-                values == knobs
-            })
-            .and_then(|s| s["power_w"].as_float())
-            .unwrap_or_else(|| panic!("{file}: no sample at {knobs:?}"))
-    };
+    let sample = profile_sample;
     let expected_wh = (sample("tracking.toml", &[4.0, 0.5]) * (tracking_s - transit_s)
         + sample("tracking.toml", &[4.0, 10.0]) * (landing_s - tracking_s)
         + sample("landing.toml", &[10.0]) * (end_s - landing_s))
@@ -252,6 +232,89 @@ fn the_companion_energy_is_what_each_phase_ran() {
         "{} Wh charged, {expected_wh} Wh ran",
         outcome.companion_energy_wh
     );
+}
+
+/// A camera that stalls for 25 s of the tracking phase: the detector and the hazard CNN,
+/// triggered by its frames, run less (the detector not at all, the CNN once a second on its
+/// own), and the governor, measuring the frame rate, charges the board for what ran: less than
+/// the levels' power while the camera is silent, the levels' power again once it is back.
+#[test]
+fn a_stalled_camera_is_charged_at_the_rates_the_tasks_ran() {
+    let outcome = fly(SimOptions {
+        fixed_levels: vec![("hazard".into(), 4.0), ("detection".into(), 10.0)],
+        tracking_s: Some(45.0),
+        faults: Faults {
+            camera_stall: Some((5.0, 30.0)),
+            ..Faults::default()
+        },
+        ..short(3)
+    });
+    let at = |what: &str| {
+        outcome
+            .events
+            .iter()
+            .find(|(_, e)| e == what)
+            .unwrap_or_else(|| panic!("no `{what}`: {:#?}", outcome.events))
+            .0
+    };
+    let transit_s = at("phase transit started");
+    let tracking_s = at("phase tracking started");
+    let landing_s = at("phase landing started");
+    // The stall loses the pad while following it; the mission need not land for this.
+    let end_s = outcome
+        .events
+        .iter()
+        .find(|(_, e)| e == "landed and disarmed" || e.contains("time limit"))
+        .expect("the mission ends")
+        .0;
+    let sample = profile_sample;
+    let full_w = sample("tracking.toml", &[4.0, 10.0]);
+    // Silent camera: the CNN's idle runs (1 fps), the detector's profile at its lowest rate.
+    let silent_w = sample("tracking.toml", &[1.0, 0.5]);
+    let at_levels_wh = (sample("tracking.toml", &[4.0, 0.5]) * (tracking_s - transit_s)
+        + full_w * (landing_s - tracking_s)
+        + sample("landing.toml", &[10.0]) * (end_s - landing_s))
+        / 3600.0;
+    let saved_wh = at_levels_wh - outcome.companion_energy_wh;
+    // Of the 25 s stall, the ten-second window sees the silence within a few seconds and the
+    // frames' return as soon as they are back: at least 15 s charged at (nearly) the silent
+    // power, at most the stall plus a window.
+    let per_second_wh = (full_w - silent_w) / 3600.0;
+    eprintln!(
+        "saved {saved_wh} Wh = {} silent seconds",
+        saved_wh / per_second_wh
+    );
+    assert!(
+        saved_wh > 15.0 * per_second_wh * 0.9,
+        "{saved_wh} Wh saved, {per_second_wh} Wh a silent second"
+    );
+    assert!(
+        saved_wh < 35.0 * per_second_wh,
+        "{saved_wh} Wh saved, {per_second_wh} Wh a silent second"
+    );
+}
+
+/// The measured power of a seed profile (profiles/jetson-nano-seed) at exactly `knobs`.
+fn profile_sample(file: &str, knobs: &[f64]) -> f64 {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../profiles/jetson-nano-seed")
+        .join(file);
+    let profile: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
+    profile["sample"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| {
+            let values: Vec<f64> = s["knobs"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_float().unwrap())
+                .collect();
+            values == knobs
+        })
+        .and_then(|s| s["power_w"].as_float())
+        .unwrap_or_else(|| panic!("{file}: no sample at {knobs:?}"))
 }
 
 #[test]

@@ -4,8 +4,8 @@
 
 use super::suggest::did_you_mean;
 use super::validate::{validate, PathSegment};
-use super::LinkSettings;
 use super::{Battery, Flight, Mission, MissionConfig, PowerModelConfig, TaskConfig};
+use super::{CameraSettings, LinkSettings};
 use crate::catalog::PluginCatalog;
 use crate::diagnostic::{Diagnostic, FileReport};
 use crate::governor::GovernorConfig;
@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use toml::de::{DeTable, DeValue, ValueDeserializer};
 use toml::Spanned;
 
-const SECTIONS: [&str; 7] = [
+const SECTIONS: [&str; 8] = [
     "mission",
     "battery",
     "flight",
@@ -23,6 +23,7 @@ const SECTIONS: [&str; 7] = [
     "task",
     "governor",
     "link",
+    "camera",
 ];
 
 /// A config that passed every check.
@@ -197,6 +198,10 @@ fn deserialize_sections(
         None => Some(None),
         Some(_) => section::<LinkSettings>(root, "link", diagnostics).map(Some),
     };
+    let camera = match root.get("camera") {
+        None => Some(None),
+        Some(_) => section::<CameraSettings>(root, "camera", diagnostics).map(Some),
+    };
     Some(MissionConfig {
         mission: mission?,
         battery: battery?,
@@ -205,6 +210,7 @@ fn deserialize_sections(
         tasks: tasks?,
         governor: governor?,
         link: link?,
+        camera: camera?,
     })
 }
 

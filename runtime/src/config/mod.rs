@@ -37,7 +37,25 @@ pub struct MissionConfig {
     /// The MAVLink link to the autopilot (`qosrt run`); every key has a default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub link: Option<LinkSettings>,
+    /// The camera the tasks read; every key is optional.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraSettings>,
 }
+
+/// `[camera]`: what the planner and the simulator know of the camera.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSettings {
+    /// Frames a second the camera delivers. A task triggered by `camera/frame` runs no
+    /// faster, whatever its level, and the planner prices it at the rate it runs at; the
+    /// simulator's camera runs at it (10 fps without it). In flight the measured rate takes
+    /// over.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rate_fps: Option<f64>,
+}
+
+/// The topic a camera's frames arrive on.
+pub const CAMERA_FRAME_TOPIC: &str = "camera/frame";
 
 /// `[link]`: how `qosrt run` speaks to the autopilot.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -333,6 +351,23 @@ impl TaskConfig {
     pub fn knob_name(&self) -> String {
         format!("{}.{}", self.name, self.knob)
     }
+
+    /// The knob value the task actually runs at on a level of knob value `level_value`, when
+    /// its trigger's topic delivers `input_rate_hz` messages a second (`None`: not known). A
+    /// periodic task runs at its level. A triggered one runs on each input, at most at its
+    /// level's rate, and at least every `max_idle_ms`: min(level, max(input, idle)).
+    pub fn running_knob_value(&self, level_value: f64, input_rate_hz: Option<f64>) -> f64 {
+        let (TaskTrigger::Input(_), Some(input_rate_hz)) = (&self.trigger, input_rate_hz) else {
+            return level_value;
+        };
+        let idle_rate_hz = self.max_idle_ms.map_or(0.0, |ms| 1000.0 / ms);
+        let floor_hz = input_rate_hz.max(idle_rate_hz);
+        match self.knob {
+            Knob::RateFps => level_value.min(floor_hz),
+            // 1000 / 0 is an infinite period: a task that never runs.
+            Knob::PeriodMs => level_value.max(1000.0 / floor_hz),
+        }
+    }
 }
 
 impl MissionConfig {
@@ -359,6 +394,31 @@ mod tests {
     use crate::catalog::PluginCatalog;
 
     const REFERENCE: &str = include_str!("../../../qos.toml");
+
+    #[test]
+    fn a_triggered_task_runs_at_its_level_its_input_or_its_idle_rate() {
+        let config = load_str(REFERENCE, None, &PluginCatalog::builtin()).unwrap();
+        let task = |name: &str| config.task(name).unwrap().clone();
+        // Detection, on camera frames, no idle runs: min(level, camera).
+        let detection = task("detection");
+        assert_eq!(detection.running_knob_value(10.0, Some(4.0)), 4.0);
+        assert_eq!(detection.running_knob_value(2.0, Some(4.0)), 2.0);
+        assert_eq!(detection.running_knob_value(10.0, None), 10.0);
+        assert_eq!(detection.running_knob_value(10.0, Some(0.0)), 0.0);
+        // Tracking, period knob, on fixes with a 20 ms idle bound: never slower than 20 ms
+        // apart, never faster than its level.
+        let tracking = task("tracking");
+        assert_eq!(tracking.running_knob_value(20.0, Some(2.0)), 20.0);
+        assert_eq!(tracking.running_knob_value(100.0, Some(2.0)), 100.0);
+        let mut no_idle = tracking.clone();
+        no_idle.max_idle_ms = None;
+        assert_eq!(no_idle.running_knob_value(20.0, Some(2.0)), 500.0);
+        assert_eq!(no_idle.running_knob_value(20.0, Some(0.0)), f64::INFINITY);
+        // A periodic task runs at its level whatever comes in.
+        let mut periodic = detection.clone();
+        periodic.trigger = TaskTrigger::Period;
+        assert_eq!(periodic.running_knob_value(10.0, Some(4.0)), 10.0);
+    }
 
     fn reference() -> MissionConfig {
         load_str(REFERENCE, None, &PluginCatalog::builtin())

@@ -69,6 +69,14 @@ pub fn validate(config: &MissionConfig, plugins: &PluginCatalog) -> Vec<ConfigIs
     check_battery(config, &root.key("battery"), &mut issues);
     check_battery_model(config, &root.key("battery"), &mut issues);
     check_flight(config, &root.key("flight"), &mut issues);
+    if let Some(rate_fps) = config.camera.as_ref().and_then(|camera| camera.rate_fps) {
+        check_positive(
+            rate_fps,
+            "the camera's rate_fps",
+            &root.key("camera").key("rate_fps"),
+            &mut issues,
+        );
+    }
     check_power_model(config, &root.key("power_model"), &mut issues);
     check_tasks(config, plugins, &root.key("task"), &mut issues);
     check_dataflow(config, plugins, &root.key("task"), &mut issues);

@@ -118,6 +118,11 @@ pub enum GovernorError {
     Battery(#[source] BatteryError),
     #[error("cannot plan the mission: {0}")]
     Plan(#[from] PlanError),
+    #[error(
+        "re-pricing: the new power model has other tasks, phases or tables than the plan's \
+         (phase {phase})"
+    )]
+    RepriceShape { phase: usize },
 }
 
 /// First-order low-pass of the voltage and current handed to the estimator.
@@ -262,6 +267,31 @@ impl Governor {
             land_now: false,
             last_replan: None,
         })
+    }
+
+    /// Prices the levels anew: the same tasks, phases and levels, other powers (a triggered
+    /// task measured running slower than its level). The levels in force stay; the next
+    /// re-plan and the drain watch use the new powers.
+    pub fn reprice(&mut self, problem: PlanProblem) -> Result<(), GovernorError> {
+        let same_tasks = problem.tasks.len() == self.problem.tasks.len();
+        for (phase, (new, old)) in problem.phases.iter().zip(&self.problem.phases).enumerate() {
+            let same_terms = new.terms.len() == old.terms.len()
+                && new
+                    .terms
+                    .iter()
+                    .zip(&old.terms)
+                    .all(|(a, b)| a.tasks == b.tasks && a.power_w.len() == b.power_w.len());
+            if !(same_tasks && same_terms && new.active_tasks == old.active_tasks) {
+                return Err(GovernorError::RepriceShape { phase });
+            }
+        }
+        if problem.phases.len() != self.problem.phases.len() {
+            return Err(GovernorError::RepriceShape {
+                phase: problem.phases.len().min(self.problem.phases.len()),
+            });
+        }
+        self.problem = problem;
+        Ok(())
     }
 
     /// A governor for a loaded mission: its plan problem, its battery with the default

@@ -2,6 +2,7 @@
 //! that joins link, governor, camera, scheduler and sequencer, onboard and in simulation) and
 //! what a run logs.
 
+pub mod input_rates;
 pub mod report;
 pub mod runner;
 pub mod sequencer;

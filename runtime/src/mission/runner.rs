@@ -7,6 +7,7 @@
 //! clock with a [`RealTimeScheduler`](crate::scheduler::RealTimeScheduler), the simulator's
 //! harness in lockstep with its world on a [`VirtualScheduler`](crate::scheduler::VirtualScheduler).
 
+use super::input_rates::InputRateMeter;
 use super::report::{GovernorDecision, MissionLog};
 use super::sequencer::{
     AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, SequencerInput,
@@ -131,6 +132,9 @@ pub struct MissionRunner<S: TaskScheduler> {
     /// Where the run is recorded, if it is, and the levels it last recorded.
     recorder: Option<Recorder>,
     recorded_levels: Option<Vec<TaskLevel>>,
+    /// How often the topics that trigger tasks deliver, and their publish counters.
+    input_rates: InputRateMeter,
+    input_activity: Vec<std::sync::Arc<crate::bus::TopicActivity>>,
 }
 
 impl<S: TaskScheduler> MissionRunner<S> {
@@ -149,7 +153,22 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 .map_err(RunnerError::Governor)?;
         let fixed = resolve_fixed_levels(&model, &options.fixed_levels)?;
         let bus = scheduler.bus().clone();
+        let mut trigger_topics: Vec<String> = model
+            .config
+            .tasks
+            .iter()
+            .filter_map(|task| task.trigger.input().map(str::to_string))
+            .collect();
+        trigger_topics.sort();
+        trigger_topics.dedup();
+        let input_activity = trigger_topics
+            .iter()
+            .map(|topic| bus.activity(topic))
+            .collect::<Result<_, _>>()?;
+        let input_rates = InputRateMeter::new(trigger_topics, model.declared_input_rates());
         Ok(Self {
+            input_rates,
+            input_activity,
             vehicle_topic: bus.publisher(VEHICLE_STATE)?,
             phase_topic: bus.publisher(MISSION_PHASE)?,
             frames: bus.publisher(CAMERA_FRAME)?,
@@ -426,6 +445,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 },
             );
         }
+        self.reprice_at_measured_input_rates(now_s)?;
         let status = self.sequencer.status();
         let progress = status.phase.map_or(MissionProgress::start(), |p| {
             MissionProgress::new(p, now_s - status.phase_started_s)
@@ -457,6 +477,32 @@ impl<S: TaskScheduler> MissionRunner<S> {
             }
         }
         Ok(())
+    }
+
+    /// The governor prices triggered tasks at the rates their inputs were measured at, once
+    /// those moved (a camera slower than declared, a detector that stopped finding the pad).
+    fn reprice_at_measured_input_rates(&mut self, now_s: f64) -> Result<(), RunnerError> {
+        let counts = self.input_activity.iter().map(|a| a.published()).collect();
+        let Some(rates) = self.input_rates.sample(now_s, counts) else {
+            return Ok(());
+        };
+        let described: Vec<String> = rates
+            .iter()
+            .map(|(topic, rate)| format!("{topic} {rate:.2}/s"))
+            .collect();
+        tracing::info!(
+            time_s = now_s,
+            "input rates measured: {}",
+            described.join(", ")
+        );
+        self.governor
+            .reprice(self.model.plan_problem_at(&rates))
+            .map_err(RunnerError::Governor)
+    }
+
+    /// The rates the governor prices triggered tasks at: declared, then measured.
+    pub fn input_rates(&self) -> &crate::energy::InputRates {
+        self.input_rates.in_force()
     }
 
     /// Every frame the camera has ready, published at its capture time.

@@ -48,9 +48,13 @@ pub(crate) fn wind_config(speed_m_s: f64, kind: WindKind) -> WindConfig {
 }
 
 /// The camera the tracker's params describe (field of view and image size: the
-/// `kalman_tracker`'s, else the `hybrid_tracking`'s), at 10 fps like the seed's.
+/// `kalman_tracker`'s, else the `hybrid_tracking`'s), at `[camera] rate_fps`, else 10 fps like
+/// the seed's.
 pub(crate) fn camera_config(model: &MissionModel) -> SimCameraConfig {
     let mut config = SimCameraConfig::default();
+    if let Some(rate_fps) = model.config.camera.as_ref().and_then(|c| c.rate_fps) {
+        config.rate_fps = rate_fps;
+    }
     let number = |key| {
         let config = &model.config;
         config
