@@ -243,6 +243,66 @@ fn the_file_reads_in_the_mcap_crates_indexed_reader_with_foxglove_schemas() {
     assert!(attached.contains(&"qos.toml".to_string()), "{attached:?}");
 }
 
+/// Every velocity setpoint the landing chain steers carries, in its `time_boot_ms`, the capture
+/// of the frame whose fix it answers: one of the recorded frames' capture instants, before the
+/// setpoint was sent. Before the first fix, setpoints carry the time they are sent.
+#[test]
+fn each_vision_setpoint_carries_the_capture_of_the_frame_it_answers() {
+    let bytes = std::fs::read(&recorded().path).unwrap();
+    let messages: Vec<_> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    let captures_ms: std::collections::BTreeSet<u32> = messages
+        .iter()
+        .filter(|m| m.channel.topic == "/camera/image")
+        .map(|m| (m.publish_time / 1_000_000) as u32)
+        .collect();
+    assert!(captures_ms.len() > 50, "{} frames", captures_ms.len());
+    let (mut answering, mut at_send) = (0, 0);
+    for message in messages
+        .iter()
+        .filter(|m| m.channel.topic == "/mavlink/out")
+    {
+        let record: runtime::record::channels::MavlinkRecord =
+            serde_json::from_slice(&message.data).unwrap();
+        if record.name != "SET_POSITION_TARGET_LOCAL_NED" {
+            continue;
+        }
+        let frame: Vec<u8> = (0..record.frame.len())
+            .step_by(2)
+            .map(|i| u8::from_str_radix(&record.frame[i..i + 2], 16).unwrap())
+            .collect();
+        let decoded = runtime::link::connection::decode_datagram(&frame);
+        let [(_, mavlink::dialects::common::MavMessage::SET_POSITION_TARGET_LOCAL_NED(setpoint))] =
+            decoded.as_slice()
+        else {
+            panic!("not one setpoint: {decoded:?}");
+        };
+        // Both sides are whole milliseconds of the same instants, rounded apart.
+        let stamp_ms = setpoint.time_boot_ms;
+        let sent_ms = (message.log_time / 1_000_000) as u32;
+        let a_capture = captures_ms
+            .range(stamp_ms.saturating_sub(1)..=stamp_ms + 1)
+            .next()
+            .is_some();
+        if a_capture && stamp_ms + 1 < sent_ms {
+            answering += 1;
+        } else {
+            assert!(
+                stamp_ms.abs_diff(sent_ms) <= 1,
+                "{stamp_ms} ms is neither a capture nor the send time {sent_ms} ms"
+            );
+            at_send += 1;
+        }
+    }
+    assert!(
+        answering > 100,
+        "{answering} answering a frame, {at_send} at their send time"
+    );
+    assert!(at_send > 0, "the setpoints before the first fix");
+}
+
 #[test]
 fn a_file_cut_off_mid_flight_replays_up_to_its_last_complete_chunk() {
     let recorded = recorded();

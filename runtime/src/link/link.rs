@@ -416,6 +416,16 @@ impl MavlinkLink {
     /// Sends one command. Offboard setpoints are held back while the link is not connected
     /// or a recovery is pending ([`Sent::Suppressed`]).
     pub fn send(&mut self, command: &VehicleCommand) -> Result<Sent, LinkError> {
+        self.send_stamped(command, self.now_s)
+    }
+
+    /// [`Self::send`] with the message's `time_boot_ms` (where it has one) at `stamp_s` on the
+    /// runtime's clock: a velocity setpoint carries the capture of the frame it answers.
+    pub fn send_stamped(
+        &mut self,
+        command: &VehicleCommand,
+        stamp_s: f64,
+    ) -> Result<Sent, LinkError> {
         if command.is_offboard_setpoint() && self.failsafe_action() != FailsafeAction::Continue {
             self.stats.suppressed_setpoints += 1;
             return Ok(Sent::Suppressed);
@@ -426,7 +436,7 @@ impl MavlinkLink {
             kind: self.autopilot_kind,
             home_amsl_m: self.telemetry.home_amsl_m(),
         };
-        let time_boot_ms = (self.now_s.max(0.0) * 1000.0) as u32;
+        let time_boot_ms = (stamp_s.max(0.0) * 1000.0) as u32;
         let message = command_message(command, &target, time_boot_ms);
         self.send_message(&message)
     }

@@ -324,8 +324,15 @@ impl<S: TaskScheduler> MissionRunner<S> {
             commands.extend(self.landing_target(now_s));
         }
         commands.extend(self.stream_requests(now_s));
+        // A velocity setpoint carries the capture of the frame whose fix it answers.
+        let answered_capture_s = self.relative.peek().and_then(|m| m.value.last_fix_time_s);
         for command in &commands {
-            self.link.send(command)?;
+            match (command, answered_capture_s) {
+                (VehicleCommand::VelocityNed { .. }, Some(capture_s)) => {
+                    self.link.send_stamped(command, capture_s)?
+                }
+                _ => self.link.send(command)?,
+            };
         }
         self.note_vision_latency(now_s, &commands);
         if let Some(t_ns) = lockstep {
