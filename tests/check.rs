@@ -233,7 +233,7 @@ const BAD_CASES: &[BadCase] = &[
     },
     BadCase {
         name: "a camera with no frames",
-        replace: &[("[battery]", "[camera]\nrate_fps = -10.0\n\n[battery]")],
+        replace: &[("rate_fps = 10.0\n\n# The tasks.", "rate_fps = -10.0\n\n# The tasks.")],
         expect: &[at(
             "-10.0",
             0,
@@ -242,7 +242,7 @@ const BAD_CASES: &[BadCase] = &[
     },
     BadCase {
         name: "misspelt camera key",
-        replace: &[("[battery]", "[camera]\nrate_fsp = 10.0\n\n[battery]")],
+        replace: &[("rate_fps = 10.0\n\n# The tasks.", "rate_fsp = 10.0\n\n# The tasks.")],
         expect: &[at(
             "rate_fsp",
             0,
