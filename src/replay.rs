@@ -129,6 +129,16 @@ pub fn describe(report: &ReplayReport, file: &Path) -> String {
     if let Some(why) = &report.stopped {
         out += &format!("the replay stopped {why}\n");
     }
+    let latency = &report.capture_to_setpoint;
+    if latency.count > 0 {
+        out += &format!(
+            "the flight's capture to setpoint: {:.1} ms median, {:.1} ms p99, {:.1} ms max ({} frames answered)\n",
+            latency.p50_us * 1e-3,
+            latency.p99_us * 1e-3,
+            latency.max_us * 1e-3,
+            latency.count
+        );
+    }
     out += &format!(
         "{:<32} {:>9} {:>9} {:>9}  first difference\n",
         "output channel", "recorded", "replayed", "differ"

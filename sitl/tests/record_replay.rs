@@ -303,6 +303,30 @@ fn each_vision_setpoint_carries_the_capture_of_the_frame_it_answers() {
     assert!(at_send > 0, "the setpoints before the first fix");
 }
 
+/// The replay reads the flight's capture to setpoint back from the file alone (frames' capture
+/// instants, setpoints' stamps and send times): what the runner measured as it flew.
+#[test]
+fn the_recording_gives_back_the_flights_capture_to_setpoint() {
+    let recorded = recorded();
+    let report = replay_with(&recorded.path, &ReplayOptions::default());
+    let from_file = report.capture_to_setpoint;
+    let [p50_ms, p99_ms, max_ms] = recorded
+        .outcome
+        .capture_to_setpoint_ms
+        .expect("the flight steered by vision");
+    assert_eq!(from_file.count, recorded.outcome.capture_to_setpoint_fixes);
+    for (file_us, flight_ms) in [
+        (from_file.p50_us, p50_ms),
+        (from_file.p99_us, p99_ms),
+        (from_file.max_us, max_ms),
+    ] {
+        assert!(
+            (file_us * 1e-3 - flight_ms).abs() < 0.5,
+            "{from_file:?} against {p50_ms} / {p99_ms} / {max_ms} ms"
+        );
+    }
+}
+
 #[test]
 fn a_file_cut_off_mid_flight_replays_up_to_its_last_complete_chunk() {
     let recorded = recorded();

@@ -7,6 +7,7 @@
 //! fly it again. [`replay`] re-runs the tasks on the inputs and compares the outputs.
 
 pub mod channels;
+pub mod latency;
 pub mod reader;
 pub mod recorder;
 pub mod replay;

@@ -87,6 +87,8 @@ pub struct ReplayReport {
     /// Why the replay stopped before the recording's last step, if it did.
     pub stopped: Option<String>,
     pub channels: Vec<ChannelDiff>,
+    /// The flight's capture to setpoint, read from the recording ([`super::latency`]).
+    pub capture_to_setpoint: crate::scheduler::DurationSummary,
 }
 
 impl ReplayReport {
@@ -226,6 +228,7 @@ pub fn replay(
         steps_replayed,
         replayed_until_s: replayed_until_ns as f64 * 1e-9,
         recording_truncated: recording.truncated.clone(),
+        capture_to_setpoint: super::latency::capture_to_setpoint(recording),
         stopped,
         channels: compare(recording, &replayed, replayed_until_ns),
     })

@@ -1,0 +1,57 @@
+//! Capture to setpoint read back from a recording: each velocity setpoint on `/mavlink/out`
+//! carries in its `time_boot_ms` the capture of the frame whose fix it answers, and the frames
+//! on `/camera/image` carry their capture as their publish time. The first setpoint sent for a
+//! capture gives that frame's delay: the flight's own figure, from the file alone.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use mavlink::dialects::common::MavMessage;
+
+use super::channels::{self as ch, MavlinkRecord};
+use super::reader::Recording;
+use crate::scheduler::stats::Histogram;
+use crate::scheduler::DurationSummary;
+
+/// Whole milliseconds of the same instant may round apart by one.
+const MATCH_MS: u64 = 1;
+
+/// From each recorded frame's capture to the first velocity setpoint that answers it.
+pub fn capture_to_setpoint(recording: &Recording) -> DurationSummary {
+    // Capture instants by whole millisecond, as a setpoint's `time_boot_ms` carries them.
+    let captures_ns: BTreeMap<u64, u64> = recording
+        .topic(ch::CAMERA_IMAGE.topic)
+        .map(|frame| (frame.publish_time_ns / 1_000_000, frame.publish_time_ns))
+        .collect();
+    let mut answered = BTreeSet::new();
+    let mut delays = Histogram::default();
+    for message in recording.topic(ch::MAVLINK_OUT.topic) {
+        let Some(stamp_ms) = setpoint_stamp_ms(&message.data) else {
+            continue;
+        };
+        let capture = captures_ns
+            .range(stamp_ms.saturating_sub(MATCH_MS)..=stamp_ms + MATCH_MS)
+            .map(|(_, &capture_ns)| capture_ns)
+            .find(|&capture_ns| capture_ns < message.log_time_ns);
+        if let Some(capture_ns) = capture {
+            if answered.insert(capture_ns) {
+                delays.record(message.log_time_ns - capture_ns);
+            }
+        }
+    }
+    delays.summary()
+}
+
+/// A recorded velocity setpoint's `time_boot_ms`; `None` for anything else.
+fn setpoint_stamp_ms(data: &[u8]) -> Option<u64> {
+    let record: MavlinkRecord = serde_json::from_slice(data).ok()?;
+    if record.name != "SET_POSITION_TARGET_LOCAL_NED" {
+        return None;
+    }
+    let bytes = hex::decode(&record.frame).ok()?;
+    match crate::link::connection::decode_datagram(&bytes).as_slice() {
+        [(_, MavMessage::SET_POSITION_TARGET_LOCAL_NED(setpoint))] => {
+            Some(u64::from(setpoint.time_boot_ms))
+        }
+        _ => None,
+    }
+}
