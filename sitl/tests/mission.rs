@@ -54,6 +54,16 @@ fn short(seed: u64) -> SimOptions {
     }
 }
 
+/// When the event `what` (the whole line) happened.
+fn event_time(outcome: &SimOutcome, what: &str) -> f64 {
+    outcome
+        .events
+        .iter()
+        .find(|(_, e)| e == what)
+        .unwrap_or_else(|| panic!("no `{what}`: {:#?}", outcome.events))
+        .0
+}
+
 fn has_event(outcome: &SimOutcome, text: &str) -> bool {
     outcome.events.iter().any(|(_, event)| event.contains(text))
 }
@@ -207,14 +217,7 @@ fn the_companion_energy_is_what_each_phase_ran() {
         ..short(3)
     });
     assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
-    let at = |what: &str| {
-        outcome
-            .events
-            .iter()
-            .find(|(_, e)| e == what)
-            .unwrap_or_else(|| panic!("no `{what}`: {:#?}", outcome.events))
-            .0
-    };
+    let at = |what: &str| event_time(&outcome, what);
     let transit_s = at("phase transit started");
     let tracking_s = at("phase tracking started");
     let landing_s = at("phase landing started");
@@ -249,14 +252,7 @@ fn a_stalled_camera_is_charged_at_the_rates_the_tasks_ran() {
         },
         ..short(3)
     });
-    let at = |what: &str| {
-        outcome
-            .events
-            .iter()
-            .find(|(_, e)| e == what)
-            .unwrap_or_else(|| panic!("no `{what}`: {:#?}", outcome.events))
-            .0
-    };
+    let at = |what: &str| event_time(&outcome, what);
     let transit_s = at("phase transit started");
     let tracking_s = at("phase tracking started");
     let landing_s = at("phase landing started");

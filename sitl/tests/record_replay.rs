@@ -269,15 +269,11 @@ fn each_vision_setpoint_carries_the_capture_of_the_frame_it_answers() {
         if record.name != "SET_POSITION_TARGET_LOCAL_NED" {
             continue;
         }
-        let frame: Vec<u8> = (0..record.frame.len())
-            .step_by(2)
-            .map(|i| u8::from_str_radix(&record.frame[i..i + 2], 16).unwrap())
-            .collect();
-        let decoded = runtime::link::connection::decode_datagram(&frame);
-        let [(_, mavlink::dialects::common::MavMessage::SET_POSITION_TARGET_LOCAL_NED(setpoint))] =
-            decoded.as_slice()
+        let decoded = record.message().unwrap();
+        let (_, mavlink::dialects::common::MavMessage::SET_POSITION_TARGET_LOCAL_NED(setpoint)) =
+            &decoded
         else {
-            panic!("not one setpoint: {decoded:?}");
+            panic!("not a setpoint: {decoded:?}");
         };
         // Both sides are whole milliseconds of the same instants, rounded apart.
         let stamp_ms = setpoint.time_boot_ms;

@@ -273,6 +273,11 @@ impl Governor {
     /// task measured running slower than its level). The levels in force stay; the next
     /// re-plan and the drain watch use the new powers.
     pub fn reprice(&mut self, problem: PlanProblem) -> Result<(), GovernorError> {
+        if problem.phases.len() != self.problem.phases.len() {
+            return Err(GovernorError::RepriceShape {
+                phase: problem.phases.len().min(self.problem.phases.len()),
+            });
+        }
         let same_tasks = problem.tasks.len() == self.problem.tasks.len();
         for (phase, (new, old)) in problem.phases.iter().zip(&self.problem.phases).enumerate() {
             let same_terms = new.terms.len() == old.terms.len()
@@ -284,11 +289,6 @@ impl Governor {
             if !(same_tasks && same_terms && new.active_tasks == old.active_tasks) {
                 return Err(GovernorError::RepriceShape { phase });
             }
-        }
-        if problem.phases.len() != self.problem.phases.len() {
-            return Err(GovernorError::RepriceShape {
-                phase: problem.phases.len().min(self.problem.phases.len()),
-            });
         }
         self.problem = problem;
         Ok(())

@@ -354,11 +354,6 @@ impl MavlinkLink {
         }
     }
 
-    /// The autopilot's clock as the TIMESYNC exchange found it.
-    pub fn clock_sync(&self) -> &ClockSync {
-        &self.clock_sync
-    }
-
     /// `time_s` on the runtime's clock in microseconds on the autopilot's, once known.
     pub fn autopilot_time_us(&self, time_s: f64) -> Option<u64> {
         self.clock_sync.autopilot_time_us(time_s)

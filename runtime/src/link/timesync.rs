@@ -64,7 +64,8 @@ pub struct ClockSyncStats {
     pub replies_refused: u64,
     /// Times the autopilot's clock jumped and the estimate started again.
     pub clock_jumps: u64,
-    /// The estimate (autopilot minus companion), once trusted.
+    /// The estimate (autopilot minus companion), once trusted (filled in by
+    /// [`ClockSync::stats`]; the exchange keeps only the counts).
     pub offset_ns: Option<i64>,
     /// The round trip of the sample the estimate rests on.
     pub round_trip_ns: Option<i64>,
@@ -147,10 +148,6 @@ impl ClockSync {
             self.samples.pop_front();
         }
         self.samples.push_back(sample);
-        let trusted = self.estimate();
-        self.stats.offset_ns = trusted.map(|s| s.offset_ns);
-        self.stats.round_trip_ns = trusted.map(|s| s.round_trip_ns);
-        self.stats.rate = trusted.map(|_| self.rate());
         Some(sample)
     }
 
@@ -207,8 +204,15 @@ impl ClockSync {
                 > CLOCK_JUMP_NS
     }
 
+    /// The counts, and the estimate as it stands.
     pub fn stats(&self) -> ClockSyncStats {
-        self.stats
+        let trusted = self.estimate();
+        ClockSyncStats {
+            offset_ns: trusted.map(|s| s.offset_ns),
+            round_trip_ns: trusted.map(|s| s.round_trip_ns),
+            rate: trusted.map(|_| self.rate()),
+            ..self.stats
+        }
     }
 
     /// The shortest round trip in the window (the earliest of equals).

@@ -37,17 +37,13 @@ impl InputRateMeter {
         }
     }
 
-    pub fn topics(&self) -> &[String] {
-        &self.topics
-    }
-
     /// The rates the governor prices with now.
     pub fn in_force(&self) -> &InputRates {
         &self.in_force
     }
 
-    /// Takes the counts (one per topic, in [`Self::topics`]' order) at `now_s`; the new rates
-    /// when one moved, which are then in force.
+    /// Takes the counts (one per topic, in the order [`Self::new`] was given them) at `now_s`;
+    /// the new rates when one moved, which are then in force.
     pub fn sample(&mut self, now_s: f64, counts: Vec<u64>) -> Option<InputRates> {
         debug_assert_eq!(counts.len(), self.topics.len());
         let mut moved = false;

@@ -238,17 +238,12 @@ impl MavlinkBatch {
 
     /// The batch as the link received it; a frame that does not decode is named.
     pub fn to_incoming(&self) -> Result<Incoming, ChannelError> {
-        let mut messages = Vec::with_capacity(self.frames.len());
-        for (index, frame) in self.frames.iter().enumerate() {
-            let bytes = hex::decode(frame).map_err(|source| ChannelError::Hex { index, source })?;
-            let decoded = crate::link::connection::decode_datagram(&bytes);
-            let [message] =
-                <[_; 1]>::try_from(decoded).map_err(|decoded| ChannelError::MessageCount {
-                    index,
-                    found: decoded.len(),
-                })?;
-            messages.push(message);
-        }
+        let messages = self
+            .frames
+            .iter()
+            .enumerate()
+            .map(|(index, frame)| decode_frame_hex(index, frame))
+            .collect::<Result<_, _>>()?;
         Ok(Incoming {
             messages,
             malformed: self.malformed,
@@ -266,6 +261,22 @@ impl MavlinkRecord {
             frame: mavlink_frame_hex(header, message),
         }
     }
+
+    /// The message as the link sent it; a frame that does not decode is named.
+    pub fn message(&self) -> Result<(MavHeader, MavMessage), ChannelError> {
+        decode_frame_hex(0, &self.frame)
+    }
+}
+
+/// One MAVLink 2 frame from its hex (frame `index` of its batch, for the error).
+fn decode_frame_hex(index: usize, frame: &str) -> Result<(MavHeader, MavMessage), ChannelError> {
+    let bytes = hex::decode(frame).map_err(|source| ChannelError::Hex { index, source })?;
+    let decoded = crate::link::connection::decode_datagram(&bytes);
+    let [message] = <[_; 1]>::try_from(decoded).map_err(|decoded| ChannelError::MessageCount {
+        index,
+        found: decoded.len(),
+    })?;
+    Ok(message)
 }
 
 /// Foxglove's timestamp of a time in nanoseconds.

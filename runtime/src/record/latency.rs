@@ -47,9 +47,8 @@ fn setpoint_stamp_ms(data: &[u8]) -> Option<u64> {
     if record.name != "SET_POSITION_TARGET_LOCAL_NED" {
         return None;
     }
-    let bytes = hex::decode(&record.frame).ok()?;
-    match crate::link::connection::decode_datagram(&bytes).as_slice() {
-        [(_, MavMessage::SET_POSITION_TARGET_LOCAL_NED(setpoint))] => {
+    match record.message().ok()? {
+        (_, MavMessage::SET_POSITION_TARGET_LOCAL_NED(setpoint)) => {
             Some(u64::from(setpoint.time_boot_ms))
         }
         _ => None,
