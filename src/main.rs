@@ -17,6 +17,7 @@ mod sim;
 
 use clap::{Parser, Subcommand};
 use power_models::grid::AxisScale;
+use std::ffi::OsString;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -52,8 +53,11 @@ enum Command {
         json: bool,
         /// Print the task graph instead of the summary: who feeds whom over the bus (`dot` for
         /// Graphviz: `qosrt check --graph dot | dot -Tsvg > graph.svg`).
-        #[arg(long, value_enum, num_args = 0..=1, default_missing_value = "text")]
+        #[arg(long, value_enum, num_args = 0..=1, require_equals = true, default_missing_value = "text")]
         graph: Option<check::GraphFormat>,
+        /// The task graph in this format (implies --graph).
+        #[arg(long, value_enum, value_name = "FORMAT", conflicts_with = "graph")]
+        graph_format: Option<check::GraphFormat>,
     },
     /// Run the landing-marker detector on image files (PNG, JPEG, PGM).
     Detect {
@@ -160,7 +164,7 @@ enum Command {
 fn main() -> ExitCode {
     // Warnings and errors from the runtime (a task that failed, the hazard CNN falling back to
     // the CPU) reach the user on stderr; RUST_LOG=info (or debug) shows every QoS and mode change.
-    let cli = Cli::parse();
+    let cli = Cli::parse_from(join_optional_values(std::env::args_os()));
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_log_level(&cli.command)));
     let logs = tracing_subscriber::fmt()
@@ -173,7 +177,12 @@ fn main() -> ExitCode {
             .init();
     }
     match cli.command {
-        Command::Check { file, json, graph } => check::run(&file, json, graph),
+        Command::Check {
+            file,
+            json,
+            graph,
+            graph_format,
+        } => check::run(&file, json, graph.or(graph_format)),
         Command::Sim(args) => sim::run(&args),
         Command::Replay(args) => replay::run(&args),
         Command::Profile(args) => profile::run(&args),
@@ -247,6 +256,42 @@ fn main() -> ExitCode {
     }
 }
 
+/// The flags whose value may be left out (`--graph`, `--foxglove`), with the values they take.
+/// Their value must then follow an `=`, or a config file after them would be read as their
+/// value; a following word that is one of their values is joined to them here, so
+/// `--graph dot` and `--foxglove 0.0.0.0:8765` keep working and `--graph qos.toml` means the
+/// graph of qos.toml.
+const OPTIONAL_VALUE_FLAGS: [(&str, IsValue); 2] = [
+    ("--graph", |word| {
+        <check::GraphFormat as clap::ValueEnum>::from_str(word, false).is_ok()
+    }),
+    ("--foxglove", |word| {
+        word.parse::<std::net::SocketAddr>().is_ok()
+    }),
+];
+
+/// Whether a word is one of a flag's values.
+type IsValue = fn(&str) -> bool;
+
+/// The command line with each optional-value flag joined to a following word that is its value.
+fn join_optional_values(args: impl IntoIterator<Item = OsString>) -> Vec<OsString> {
+    let mut joined: Vec<OsString> = Vec::new();
+    for arg in args {
+        let value_of = joined.last().and_then(|previous| {
+            OPTIONAL_VALUE_FLAGS
+                .iter()
+                .find(|(flag, _)| previous.to_str() == Some(flag))
+        });
+        match (value_of, arg.to_str()) {
+            (Some((flag, is_value)), Some(word)) if is_value(word) => {
+                *joined.last_mut().expect("the flag is there") = format!("{flag}={word}").into();
+            }
+            _ => joined.push(arg),
+        }
+    }
+    joined
+}
+
 /// Flying logs what it does as it goes (mode changes, QoS changes, faults); the other commands
 /// print their results and log only warnings.
 fn default_log_level(command: &Command) -> &'static str {
@@ -273,3 +318,6 @@ pub(crate) fn parse_north_east(text: &str) -> Result<[f64; 2], String> {
     };
     Ok([number(north)?, number(east)?])
 }
+
+#[cfg(test)]
+mod tests;

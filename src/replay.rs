@@ -23,7 +23,7 @@ pub struct RecordArgs {
     pub record: Option<PathBuf>,
     /// Serve the same channels live over Foxglove's WebSocket protocol (default address
     /// 127.0.0.1:8765; in Foxglove: Open connection → Foxglove WebSocket → ws://ADDR).
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
     pub foxglove: Option<SocketAddr>,
 }
 

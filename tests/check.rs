@@ -501,6 +501,18 @@ fn the_graph_shows_the_reference_missions_dataflow() {
     );
     assert!(dot.contains("\"task:landing\" -> \"mission:autopilot\" [label=\"landing/setpoint\"];"));
 
+    // The file after `--graph` is the file, not the graph's format; `--graph-format` names one.
+    for flags in [
+        &["--graph", "qos.toml"][..],
+        &["qos.toml", "--graph-format", "text"],
+    ] {
+        let output = qosrt(&[&["check"][..], flags].concat());
+        assert_eq!(output.status.code(), Some(0), "{flags:?}");
+        assert_eq!(String::from_utf8(output.stdout).unwrap(), text, "{flags:?}");
+    }
+    let output = qosrt(&["check", "--graph-format", "dot", "qos.toml"]);
+    assert_eq!(String::from_utf8(output.stdout).unwrap(), dot);
+
     let output = qosrt(&["check", "qos.toml", "--json", "--graph"]);
     let graph: serde_json::Value = serde_json::from_slice(&output.stdout).expect("JSON");
     let edges = graph["edges"].as_array().unwrap();
