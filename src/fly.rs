@@ -35,7 +35,7 @@ pub struct FlyArgs {
     pub duration_s: Option<f64>,
     pub json: bool,
     pub meeting_point_ne_m: [f64; 2],
-    pub recording: crate::replay::RecordArgs,
+    pub recording: crate::args::RecordArgs,
 }
 
 /// The report `--json` prints at the end.

@@ -1,10 +1,12 @@
 //! `qosrt`: the energy-aware QoS mission runtime's command line.
 
+mod args;
 mod check;
 mod detect;
 mod evaluate;
 mod fly;
 mod frames;
+mod load;
 mod model;
 mod plan;
 mod plot;
@@ -39,7 +41,7 @@ struct Cli {
 enum Command {
     /// Fly the whole mission in the built-in simulator: vehicle, tractor, wind, camera, battery
     /// and a MAVLink autopilot over UDP, with the real runtime and tasks, in virtual time.
-    Sim(sim::SimArgs),
+    Sim(sim::args::SimArgs),
     /// Re-run a recorded mission's tasks on its recorded frames, telemetry and clock, and say
     /// where their outputs differ from the recording (none: bit for bit).
     Replay(replay::ReplayArgs),
@@ -116,7 +118,7 @@ enum Command {
         #[arg(long, requires = "mavlink")]
         control: bool,
         /// Where the tractor waits, metres north and east of the take-off point.
-        #[arg(long, value_name = "N,E", value_parser = parse_north_east, default_value = "0,0", requires = "mavlink")]
+        #[arg(long, value_name = "N,E", value_parser = args::parse_north_east, default_value = "0,0", requires = "mavlink")]
         meeting_point_ne_m: [f64; 2],
         /// Print one JSON report at the end.
         #[arg(long, requires = "mavlink")]
@@ -132,7 +134,7 @@ enum Command {
         #[arg(long, value_name = "NAME", requires = "dry_run")]
         phase: Option<String>,
         #[command(flatten)]
-        recording: replay::RecordArgs,
+        recording: args::RecordArgs,
     },
     /// Measure this board's power at each combination of the tasks' QoS levels with its power
     /// meter (Jetson INA3221, RAPL, hwmon, NVML or an external meter's log) and write the
@@ -299,24 +301,6 @@ fn default_log_level(command: &Command) -> &'static str {
         Command::Run { dry_run: false, .. } => "info",
         _ => "warn",
     }
-}
-
-/// `N,E` in metres, e.g. `15,0`.
-pub(crate) fn parse_north_east(text: &str) -> Result<[f64; 2], String> {
-    let parts: Vec<&str> = text.split(',').collect();
-    let [north, east] = parts[..] else {
-        return Err(format!(
-            "expected N,E in metres (e.g. 15,0), found {text:?}"
-        ));
-    };
-    let number = |part: &str| {
-        part.trim()
-            .parse::<f64>()
-            .ok()
-            .filter(|v| v.is_finite())
-            .ok_or_else(|| format!("{part:?} is not a number of metres"))
-    };
-    Ok([number(north)?, number(east)?])
 }
 
 #[cfg(test)]

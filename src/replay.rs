@@ -1,42 +1,16 @@
 //! `qosrt replay F.mcap`: the recorded mission's tasks re-run on its recorded frames, telemetry
-//! and clock, and where their outputs differ from the recording; and the `--record` /
-//! `--foxglove` options `qosrt sim` and `qosrt run` share.
+//! and clock, and where their outputs differ from the recording.
 
 use crate::check::EXIT_INVALID_CONFIG;
-use crate::sim::load_model;
+use crate::load::load_model;
 use runtime::plugins::builtin_registry;
 use runtime::record::read_recording_file;
-use runtime::record::{extract_config, replay, RecorderOptions, ReplayOptions, ReplayReport};
-use std::net::SocketAddr;
+use runtime::record::{extract_config, replay, ReplayOptions, ReplayReport};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 /// Exit status when the replay's outputs differ from the recording's.
 pub const EXIT_OUTPUTS_DIFFER: u8 = 5;
-
-/// Recording and live view, for `qosrt sim` and `qosrt run`.
-#[derive(clap::Args, Debug, Clone, Default)]
-pub struct RecordArgs {
-    /// Record the mission to this MCAP file (frames, telemetry, every topic and decision, the
-    /// config): open it in Foxglove, or re-run it with `qosrt replay`.
-    #[arg(long, value_name = "FILE.mcap")]
-    pub record: Option<PathBuf>,
-    /// Serve the same channels live over Foxglove's WebSocket protocol (default address
-    /// 127.0.0.1:8765; in Foxglove: Open connection → Foxglove WebSocket → ws://ADDR).
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
-    pub foxglove: Option<SocketAddr>,
-}
-
-impl RecordArgs {
-    /// Where to record, if anywhere.
-    pub fn options(&self) -> Option<RecorderOptions> {
-        (self.record.is_some() || self.foxglove.is_some()).then(|| RecorderOptions {
-            file: self.record.clone(),
-            live: self.foxglove,
-            ..RecorderOptions::default()
-        })
-    }
-}
 
 /// `qosrt replay`'s arguments.
 #[derive(clap::Args)]
@@ -48,7 +22,7 @@ pub struct ReplayArgs {
     pub config: Option<PathBuf>,
     /// Hold a task at one of its levels, by knob value, instead of the recording's: --fix
     /// detection=2 (repeatable).
-    #[arg(long = "fix", value_name = "TASK=VALUE", value_parser = crate::sim::parse_fixed_level)]
+    #[arg(long = "fix", value_name = "TASK=VALUE", value_parser = crate::args::parse_fixed_level)]
     pub fixed_levels: Vec<(String, f64)>,
     /// Print the report as JSON.
     #[arg(long)]

@@ -1,7 +1,7 @@
 //! `qosrt sim --serve`: the simulated world as its own process (see `sitl::serve`), printing
 //! its truth as it goes and the outcome at the end.
 
-use crate::sim::{SimArgs, EXIT_NOT_LANDED};
+use crate::sim::args::{SimArgs, EXIT_NOT_LANDED};
 use runtime::energy::MissionModel;
 use sitl::mission::WindKind;
 use sitl::serve::{serve, ServeOptions, ServeVehicle, ServedTouchdown, Truth};

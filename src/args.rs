@@ -1,0 +1,62 @@
+//! Arguments several subcommands share: recording and the live view, `--fix`, `N,E`.
+
+use runtime::record::RecorderOptions;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+/// Recording and live view, for `qosrt sim` and `qosrt run`.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct RecordArgs {
+    /// Record the mission to this MCAP file (frames, telemetry, every topic and decision, the
+    /// config): open it in Foxglove, or re-run it with `qosrt replay`.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// Serve the same channels live over Foxglove's WebSocket protocol (default address
+    /// 127.0.0.1:8765; in Foxglove: Open connection → Foxglove WebSocket → ws://ADDR).
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
+    pub foxglove: Option<SocketAddr>,
+}
+
+impl RecordArgs {
+    /// Where to record, if anywhere.
+    pub fn options(&self) -> Option<RecorderOptions> {
+        (self.record.is_some() || self.foxglove.is_some()).then(|| RecorderOptions {
+            file: self.record.clone(),
+            live: self.foxglove,
+            ..RecorderOptions::default()
+        })
+    }
+}
+
+/// `TASK=VALUE` for `--fix`.
+pub fn parse_fixed_level(text: &str) -> Result<(String, f64), String> {
+    let (task, value) = text
+        .split_once('=')
+        .ok_or_else(|| format!("expected TASK=VALUE (e.g. detection=10), found `{text}`"))?;
+    let value: f64 = value
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{value}` is not a number; expected TASK=VALUE"))?;
+    if task.trim().is_empty() {
+        return Err(format!("no task name in `{text}`; expected TASK=VALUE"));
+    }
+    Ok((task.trim().to_string(), value))
+}
+
+/// `N,E` in metres, e.g. `15,0`.
+pub fn parse_north_east(text: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    let [north, east] = parts[..] else {
+        return Err(format!(
+            "expected N,E in metres (e.g. 15,0), found {text:?}"
+        ));
+    };
+    let number = |part: &str| {
+        part.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("{part:?} is not a number of metres"))
+    };
+    Ok([number(north)?, number(east)?])
+}
