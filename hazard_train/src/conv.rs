@@ -11,7 +11,22 @@
 
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
 
-use crate::model::ConvSpec;
+/// One convolution: `kernel × kernel` taps `dilation` apart, zero padding that keeps the size
+/// (`dilation · (kernel / 2)`) before the stride.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ConvSpec {
+    pub in_channels: usize,
+    pub out_channels: usize,
+    pub kernel: usize,
+    pub stride: usize,
+    pub dilation: usize,
+}
+
+impl ConvSpec {
+    pub fn padding(&self) -> usize {
+        self.dilation * (self.kernel / 2)
+    }
+}
 
 /// Geometry of one convolution over a [channels, batch, height, width] input.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

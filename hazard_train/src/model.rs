@@ -2,6 +2,7 @@
 //! the decode of its raw output into `[cx, cy, w, h, objectness, p_person, p_animal, p_vehicle]`
 //! rows — written once here in candle; the ONNX export writes the same arithmetic as graph nodes.
 
+use crate::conv::ConvSpec;
 use algorithms::vision::render::SplitMix64;
 use candle_core::{DType, Device, Tensor, Var};
 use thiserror::Error;
@@ -38,23 +39,6 @@ pub enum ModelError {
     InputShape(Vec<usize>),
     #[error(transparent)]
     Candle(#[from] candle_core::Error),
-}
-
-/// One convolution: `kernel × kernel` taps `dilation` apart, zero padding that keeps the size
-/// (`dilation · (kernel / 2)`) before the stride.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub struct ConvSpec {
-    pub in_channels: usize,
-    pub out_channels: usize,
-    pub kernel: usize,
-    pub stride: usize,
-    pub dilation: usize,
-}
-
-impl ConvSpec {
-    pub fn padding(&self) -> usize {
-        self.dilation * (self.kernel / 2)
-    }
 }
 
 /// The network's shape; the last layer is the head (no activation after it).

@@ -3,12 +3,11 @@
 //! so that mistakes in several of them are all reported in one run.
 
 use super::suggest::did_you_mean;
-use super::validate::{validate, PathSegment};
+use super::validate::{validate, PathSegment, PluginRules};
+use super::GovernorConfig;
 use super::{Battery, Flight, Mission, MissionConfig, PowerModelConfig, TaskConfig};
 use super::{CameraSettings, LinkSettings};
-use crate::catalog::PluginCatalog;
 use crate::diagnostic::{Diagnostic, FileReport};
-use crate::governor::GovernorConfig;
 use serde::de::DeserializeOwned;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -45,7 +44,7 @@ impl LoadedConfig {
 pub type ConfigFailure = FileReport;
 
 /// Reads, parses and checks a config file; relative profile paths resolve against its folder.
-pub fn load_file(path: &Path, plugins: &PluginCatalog) -> Result<LoadedConfig, ConfigFailure> {
+pub fn load_file(path: &Path, plugins: &dyn PluginRules) -> Result<LoadedConfig, ConfigFailure> {
     let failure = |source: String, diagnostics| ConfigFailure {
         path: path.to_path_buf(),
         source,
@@ -88,7 +87,7 @@ pub fn load_file(path: &Path, plugins: &PluginCatalog) -> Result<LoadedConfig, C
 pub fn load_str(
     text: &str,
     base_dir: Option<&Path>,
-    plugins: &PluginCatalog,
+    plugins: &dyn PluginRules,
 ) -> Result<MissionConfig, Vec<Diagnostic>> {
     let (root, syntax_errors) = DeTable::parse_recoverable(text);
     if syntax_errors.is_empty() && root.get_ref().is_empty() {

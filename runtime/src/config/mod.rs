@@ -4,12 +4,14 @@
 //! Keys carry their units (`duration_s`, `hover_power_w`, `capacity_mah`); unknown keys are
 //! rejected so a misspelt key is an error, not a silently ignored setting.
 
+mod governor;
 mod load;
 pub(crate) mod suggest;
 mod validate;
 
+pub use governor::{BadGovernorConfig, GovernorConfig};
 pub use load::{load_file, load_str, span_at, ConfigFailure, LoadedConfig};
-pub use validate::{validate, ConfigIssue, PathSegment};
+pub use validate::{validate, ConfigIssue, IssuePath, Issues, PathSegment, PluginRules};
 
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -33,7 +35,7 @@ pub struct MissionConfig {
     pub tasks: Vec<TaskConfig>,
     /// In-flight re-planning; every key has a default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub governor: Option<crate::governor::GovernorConfig>,
+    pub governor: Option<GovernorConfig>,
     /// The MAVLink link to the autopilot (`qosrt run`); every key has a default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub link: Option<LinkSettings>,
@@ -324,7 +326,7 @@ pub struct TaskConfig {
     /// What the scheduler does when the task fails: `{ policy = "never" }` or
     /// `{ policy = "on_failure", max_restarts = 3 }` (the default).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub restart: Option<crate::scheduler::RestartPolicy>,
+    pub restart: Option<RestartPolicy>,
     /// What activates the task: `"period"` (the default) or `"input:TOPIC"`.
     #[serde(default, skip_serializing_if = "TaskTrigger::is_period")]
     pub trigger: TaskTrigger,
@@ -385,6 +387,25 @@ impl MissionConfig {
 
     pub fn phase(&self, name: &str) -> Option<&Phase> {
         self.mission.phases.iter().find(|phase| phase.name == name)
+    }
+}
+
+/// What to do when a task fails. In TOML: `{ policy = "never" }` or
+/// `{ policy = "on_failure", max_restarts = 3 }`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "policy", rename_all = "snake_case", deny_unknown_fields)]
+pub enum RestartPolicy {
+    /// The first failure is final.
+    Never,
+    /// Build a fresh instance at the next activation, at most `max_restarts` times in the run.
+    OnFailure { max_restarts: u32 },
+}
+
+impl Default for RestartPolicy {
+    /// A few restarts ride out a transient fault (a dropped camera frame buffer) without
+    /// letting a task that always fails burn CPU forever.
+    fn default() -> Self {
+        RestartPolicy::OnFailure { max_restarts: 3 }
     }
 }
 

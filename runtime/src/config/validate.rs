@@ -3,8 +3,6 @@
 
 use super::suggest::did_you_mean;
 use super::{Knob, MissionConfig, Resource, TaskConfig};
-use crate::catalog::PluginCatalog;
-use crate::governor::GovernorError;
 use std::collections::HashSet;
 use std::fmt;
 
@@ -32,28 +30,29 @@ pub struct ConfigIssue {
 
 /// A key path under construction, extended one key or array index at a time.
 #[derive(Clone)]
-struct Path(Vec<PathSegment>);
+pub struct IssuePath(Vec<PathSegment>);
 
-impl Path {
-    fn root() -> Self {
-        Path(Vec::new())
+impl IssuePath {
+    pub fn root() -> Self {
+        IssuePath(Vec::new())
     }
-    fn key(&self, key: &str) -> Self {
+    pub fn key(&self, key: &str) -> Self {
         let mut path = self.0.clone();
         path.push(PathSegment::Key(key.to_string()));
-        Path(path)
+        IssuePath(path)
     }
-    fn index(&self, index: usize) -> Self {
+    pub fn index(&self, index: usize) -> Self {
         let mut path = self.0.clone();
         path.push(PathSegment::Index(index));
-        Path(path)
+        IssuePath(path)
     }
 }
 
-struct Issues(Vec<ConfigIssue>);
+/// The broken rules found so far.
+pub struct Issues(Vec<ConfigIssue>);
 
 impl Issues {
-    fn push(&mut self, path: &Path, message: impl Into<String>) {
+    pub fn push(&mut self, path: &IssuePath, message: impl Into<String>) {
         self.0.push(ConfigIssue {
             path: path.0.clone(),
             message: message.into(),
@@ -61,10 +60,19 @@ impl Issues {
     }
 }
 
+/// The rules that need the plugins a mission runs (their resources, knobs and ports): the
+/// catalogue keeps them (`crate::catalog`), so the config knows nothing of the runtime.
+pub trait PluginRules {
+    /// The task's plugin exists and takes its resource, knob and trigger.
+    fn check_task(&self, task: &TaskConfig, path: &IssuePath, issues: &mut Issues);
+    /// Every task's inputs are published by the mission or another task (`path`: the tasks).
+    fn check_dataflow(&self, config: &MissionConfig, path: &IssuePath, issues: &mut Issues);
+}
+
 /// Checks every rule and returns every broken one (empty when the config is valid).
-pub fn validate(config: &MissionConfig, plugins: &PluginCatalog) -> Vec<ConfigIssue> {
+pub fn validate(config: &MissionConfig, plugins: &dyn PluginRules) -> Vec<ConfigIssue> {
     let mut issues = Issues(Vec::new());
-    let root = Path::root();
+    let root = IssuePath::root();
     check_mission(config, &root.key("mission"), &mut issues);
     check_battery(config, &root.key("battery"), &mut issues);
     check_battery_model(config, &root.key("battery"), &mut issues);
@@ -79,14 +87,10 @@ pub fn validate(config: &MissionConfig, plugins: &PluginCatalog) -> Vec<ConfigIs
     }
     check_power_model(config, &root.key("power_model"), &mut issues);
     check_tasks(config, plugins, &root.key("task"), &mut issues);
-    check_dataflow(config, plugins, &root.key("task"), &mut issues);
+    plugins.check_dataflow(config, &root.key("task"), &mut issues);
     if let Some(governor) = &config.governor {
         if let Err(error) = governor.validate() {
-            let field = match &error {
-                GovernorError::BadConfig { field, .. } => *field,
-                _ => "",
-            };
-            issues.push(&root.key("governor").key(field), error.to_string());
+            issues.push(&root.key("governor").key(error.field), error.to_string());
         }
     }
     issues.0
@@ -102,7 +106,7 @@ fn phase_names(config: &MissionConfig) -> Vec<&str> {
 }
 
 /// Reports a phase name that is not one of `[[mission.phase]]`.
-fn check_phase_exists(config: &MissionConfig, name: &str, path: &Path, issues: &mut Issues) {
+fn check_phase_exists(config: &MissionConfig, name: &str, path: &IssuePath, issues: &mut Issues) {
     if config.phase(name).is_none() {
         let names = phase_names(config);
         issues.push(
@@ -116,7 +120,7 @@ fn check_phase_exists(config: &MissionConfig, name: &str, path: &Path, issues: &
     }
 }
 
-fn check_positive(value: f64, what: &str, path: &Path, issues: &mut Issues) {
+fn check_positive(value: f64, what: &str, path: &IssuePath, issues: &mut Issues) {
     if !(value.is_finite() && value > 0.0) {
         issues.push(
             path,
@@ -125,7 +129,7 @@ fn check_positive(value: f64, what: &str, path: &Path, issues: &mut Issues) {
     }
 }
 
-fn check_mission(config: &MissionConfig, path: &Path, issues: &mut Issues) {
+fn check_mission(config: &MissionConfig, path: &IssuePath, issues: &mut Issues) {
     let mission = &config.mission;
     if mission.name.trim().is_empty() {
         issues.push(&path.key("name"), "the mission name must not be empty");
@@ -208,7 +212,7 @@ fn check_mission(config: &MissionConfig, path: &Path, issues: &mut Issues) {
     }
 }
 
-fn check_battery(config: &MissionConfig, path: &Path, issues: &mut Issues) {
+fn check_battery(config: &MissionConfig, path: &IssuePath, issues: &mut Issues) {
     let battery = &config.battery;
     match (battery.capacity_wh, battery.capacity_mah) {
         (None, None) => issues.push(
@@ -246,7 +250,7 @@ fn check_battery(config: &MissionConfig, path: &Path, issues: &mut Issues) {
     }
 }
 
-fn check_battery_model(config: &MissionConfig, path: &Path, issues: &mut Issues) {
+fn check_battery_model(config: &MissionConfig, path: &IssuePath, issues: &mut Issues) {
     let battery = &config.battery;
     if let Some(resistance_ohm) = battery.internal_resistance_ohm {
         if !(resistance_ohm.is_finite() && (0.0..1.0).contains(&resistance_ohm)) {
@@ -271,7 +275,7 @@ fn check_battery_model(config: &MissionConfig, path: &Path, issues: &mut Issues)
     }
 }
 
-fn check_flight(config: &MissionConfig, path: &Path, issues: &mut Issues) {
+fn check_flight(config: &MissionConfig, path: &IssuePath, issues: &mut Issues) {
     let flight = &config.flight;
     if let Some(hover_w) = flight.hover_power_w {
         check_positive(hover_w, "hover_power_w", &path.key("hover_power_w"), issues);
@@ -301,7 +305,7 @@ fn check_flight(config: &MissionConfig, path: &Path, issues: &mut Issues) {
     }
 }
 
-fn check_power_model(config: &MissionConfig, path: &Path, issues: &mut Issues) {
+fn check_power_model(config: &MissionConfig, path: &IssuePath, issues: &mut Issues) {
     let profiles = &config.power_model.profiles;
     if profiles.is_empty() {
         issues.push(
@@ -357,49 +361,12 @@ fn check_power_model(config: &MissionConfig, path: &Path, issues: &mut Issues) {
     }
 }
 
-/// A task whose input nothing publishes would wait for it the whole mission: named at the task,
-/// with the plugins that could feed it.
-fn check_dataflow(
+fn check_tasks(
     config: &MissionConfig,
-    plugins: &PluginCatalog,
-    path: &Path,
+    plugins: &dyn PluginRules,
+    path: &IssuePath,
     issues: &mut Issues,
 ) {
-    if config
-        .tasks
-        .iter()
-        .any(|task| plugins.get(&task.plugin).is_none())
-    {
-        // An unknown plugin is reported as such; its ports would only add noise.
-        return;
-    }
-    let graph = crate::dataflow::task_graph(config, plugins);
-    for unfed in graph.missing_inputs() {
-        let task = &config.tasks[unfed.task];
-        let add = if unfed.producers.is_empty() {
-            "no plugin in the catalogue publishes it".to_string()
-        } else {
-            format!(
-                "add a task with plugin {}",
-                unfed
-                    .producers
-                    .iter()
-                    .map(|plugin| format!("`{plugin}`"))
-                    .collect::<Vec<_>>()
-                    .join(" or ")
-            )
-        };
-        issues.push(
-            &path.index(unfed.task).key("plugin"),
-            format!(
-                "task `{}` reads `{}` ({}), which no task in this mission publishes; {add}",
-                task.name, unfed.port.topic, unfed.port.message
-            ),
-        );
-    }
-}
-
-fn check_tasks(config: &MissionConfig, plugins: &PluginCatalog, path: &Path, issues: &mut Issues) {
     if config.tasks.is_empty() {
         issues.push(path, "the mission needs at least one [[task]]");
     }
@@ -423,7 +390,7 @@ fn check_tasks(config: &MissionConfig, plugins: &PluginCatalog, path: &Path, iss
                 format!("task `{}` is defined twice", task.name),
             );
         }
-        check_plugin(task, plugins, &task_path, issues);
+        plugins.check_task(task, &task_path, issues);
         if task.resource == Resource::Gpu {
             // A GPU runs one of these networks at a time: a second claimant would stall both.
             match gpu_holder {
@@ -470,12 +437,12 @@ fn check_tasks(config: &MissionConfig, plugins: &PluginCatalog, path: &Path, iss
             );
         }
         check_levels(task, &task_path, issues);
-        check_trigger(task, plugins, &task_path, issues);
+        check_trigger(task, &task_path, issues);
     }
 }
 
-/// A trigger names one of the task's own inputs; `max_idle_ms` belongs to a triggered task.
-fn check_trigger(task: &TaskConfig, plugins: &PluginCatalog, path: &Path, issues: &mut Issues) {
+/// `max_idle_ms` belongs to a triggered task (the trigger's topic is the plugin's to check).
+fn check_trigger(task: &TaskConfig, path: &IssuePath, issues: &mut Issues) {
     if let Some(max_idle_ms) = task.max_idle_ms {
         if task.trigger.input().is_none() {
             issues.push(
@@ -492,71 +459,9 @@ fn check_trigger(task: &TaskConfig, plugins: &PluginCatalog, path: &Path, issues
             );
         }
     }
-    let (Some(topic), Some(plugin)) = (task.trigger.input(), plugins.get(&task.plugin)) else {
-        // An unknown plugin is reported as such.
-        return;
-    };
-    if plugin.inputs.iter().any(|port| port.topic == topic) {
-        return;
-    }
-    let inputs: Vec<&str> = plugin.inputs.iter().map(|port| port.topic).collect();
-    let read = if inputs.is_empty() {
-        format!("; plugin `{}` reads no input", plugin.name)
-    } else {
-        format!(
-            "{}; its inputs: {}",
-            did_you_mean(topic, inputs.iter().copied()),
-            inputs.join(", ")
-        )
-    };
-    issues.push(
-        &path.key("trigger"),
-        format!(
-            "task `{}` is triggered by `{topic}`, which it does not read{read}",
-            task.name
-        ),
-    );
 }
 
-fn check_plugin(task: &TaskConfig, plugins: &PluginCatalog, path: &Path, issues: &mut Issues) {
-    let Some(plugin) = plugins.get(&task.plugin) else {
-        let names: Vec<&str> = plugins.names().collect();
-        issues.push(
-            &path.key("plugin"),
-            format!(
-                "unknown plugin `{}`{}; available plugins: {}",
-                task.plugin,
-                did_you_mean(&task.plugin, names.iter().copied()),
-                names.join(", ")
-            ),
-        );
-        return;
-    };
-    if !plugin.resources.contains(&task.resource) {
-        issues.push(
-            &path.key("resource"),
-            format!(
-                "plugin `{}` cannot run on `{}`; it runs on: {}",
-                plugin.name,
-                task.resource,
-                plugin
-                    .resources
-                    .iter()
-                    .map(|r| r.to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-        );
-    }
-    if !plugin.knobs.contains(&task.knob) {
-        issues.push(
-            &path.key("knob"),
-            format!("plugin `{}` has no QoS knob `{}`", plugin.name, task.knob),
-        );
-    }
-}
-
-fn check_levels(task: &TaskConfig, path: &Path, issues: &mut Issues) {
+fn check_levels(task: &TaskConfig, path: &IssuePath, issues: &mut Issues) {
     let levels_path = path.key("levels");
     if task.levels.is_empty() {
         issues.push(&levels_path, "a task needs at least one QoS level");

@@ -68,11 +68,10 @@ use power_models::battery::{BatteryError, BatteryEstimator};
 use power_models::planner::{level_of, solve, Plan, PlanError, PlanProblem, TaskLevel};
 use thiserror::Error;
 
-mod config;
 mod events;
 mod replan;
 
-pub use config::GovernorConfig;
+pub use crate::config::{BadGovernorConfig, GovernorConfig};
 pub use events::{
     ChangeReason, Decision, GovernorEvent, LandNow, LevelChange, ReplanSummary, ReplanTrigger,
 };
@@ -104,12 +103,8 @@ pub enum GovernorError {
         "mission progress: phase_elapsed_s = {value}, expected a finite number of seconds >= 0"
     )]
     BadElapsed { value: f64 },
-    #[error("governor config: {field} = {value} is invalid, expected {expected}")]
-    BadConfig {
-        field: &'static str,
-        value: f64,
-        expected: &'static str,
-    },
+    #[error(transparent)]
+    BadConfig(#[from] BadGovernorConfig),
     #[error("reserve_fraction = {value} is invalid, expected a fraction in [0, 1)")]
     BadReserve { value: f64 },
     #[error("the mission has no phases to govern; add a [[mission.phase]]")]

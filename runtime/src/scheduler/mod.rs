@@ -65,6 +65,8 @@ pub use stats::{DurationSummary, TaskStats};
 pub use task_scheduler::TaskScheduler;
 pub use timing::{StepCost, TimingError, TimingModel, STEP_COST_PARAM};
 pub use virtual_time::{TraceEvent, TraceKind, VirtualScheduler};
+// A task's restart policy is config, read by the runner.
+pub use crate::config::RestartPolicy;
 
 use crate::bus::Bus;
 use crate::clock::{duration_to_nanos, ClockError, Timestamp};
@@ -74,7 +76,6 @@ use crate::task::{
     panic_message, LevelError, MissionHealth, QosLevel, Task, TaskContext, TaskHealth,
 };
 use cadence::Cadence;
-use serde::{Deserialize, Serialize};
 use stats::StatsAccum;
 use std::collections::HashSet;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -130,25 +131,6 @@ pub enum SchedulerError {
     AlreadyStarted,
     #[error("the scheduler was stopped; build a new one")]
     Stopped,
-}
-
-/// What to do when a task fails. In TOML: `{ policy = "never" }` or
-/// `{ policy = "on_failure", max_restarts = 3 }`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(tag = "policy", rename_all = "snake_case", deny_unknown_fields)]
-pub enum RestartPolicy {
-    /// The first failure is final.
-    Never,
-    /// Build a fresh instance at the next activation, at most `max_restarts` times in the run.
-    OnFailure { max_restarts: u32 },
-}
-
-impl Default for RestartPolicy {
-    /// A few restarts ride out a transient fault (a dropped camera frame buffer) without
-    /// letting a task that always fails burn CPU forever.
-    fn default() -> Self {
-        RestartPolicy::OnFailure { max_restarts: 3 }
-    }
 }
 
 /// Per-task settings beyond the config.

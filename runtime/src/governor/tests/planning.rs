@@ -145,7 +145,7 @@ fn bad_configuration_is_named() {
         Governor::new(problem.clone(), estimator(), 0.25, config).unwrap_err()
     };
     let field = |error: GovernorError| match error {
-        GovernorError::BadConfig { field, .. } => field,
+        GovernorError::BadConfig(BadGovernorConfig { field, .. }) => field,
         other => panic!("{other:?}"),
     };
     assert_eq!(field(with(&|c| c.replan_period_s = 0.0)), "replan_period_s");

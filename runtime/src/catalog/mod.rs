@@ -3,6 +3,8 @@
 //! writes. The config is checked against it before anything runs, so a typo in a plugin name, or
 //! a task whose input nobody produces, is caught at `qosrt check`, not in flight.
 
+mod rules;
+
 use crate::bus::Topic;
 use crate::config::{Knob, Resource};
 use crate::topics::{

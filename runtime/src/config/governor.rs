@@ -1,7 +1,16 @@
 //! The governor's tuning: the `[governor]` section of the mission config.
 
-use super::GovernorError;
 use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// A `[governor]` value out of its range.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[error("governor config: {field} = {value} is invalid, expected {expected}")]
+pub struct BadGovernorConfig {
+    pub field: &'static str,
+    pub value: f64,
+    pub expected: &'static str,
+}
 
 /// Tuning of the governor. Every field has a default suited to a multirotor mission of tens of
 /// minutes with telemetry at 1–50 Hz.
@@ -59,9 +68,9 @@ impl Default for GovernorConfig {
 
 impl GovernorConfig {
     /// Checks every field; the error names the first bad one.
-    pub fn validate(&self) -> Result<(), GovernorError> {
+    pub fn validate(&self) -> Result<(), BadGovernorConfig> {
         let bad = |field: &'static str, value: f64, expected: &'static str| {
-            Err(GovernorError::BadConfig {
+            Err(BadGovernorConfig {
                 field,
                 value,
                 expected,
