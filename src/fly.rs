@@ -215,10 +215,11 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
             SchedulerBuilder::DEFAULT_SEED,
             plan,
             &loaded.config,
-            &runner_options,
             has_camera,
             files[0].path.clone(),
         );
+        header.fixed_levels = runner_options.fixed_levels.clone();
+        header.landing_target = runner_options.landing_target;
         header.link_peer_known = runner.link().has_peer();
         let recorder = Recorder::start(&options, &header, &files)?;
         if let Some(port) = recorder.live_port() {

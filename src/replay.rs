@@ -3,9 +3,10 @@
 
 use crate::check::EXIT_INVALID_CONFIG;
 use crate::load::load_model;
+use runtime::mission::{replay, ReplayOptions, ReplayReport};
 use runtime::plugins::builtin_registry;
+use runtime::record::extract_config;
 use runtime::record::read_recording_file;
-use runtime::record::{extract_config, replay, ReplayOptions, ReplayReport};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 

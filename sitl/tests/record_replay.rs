@@ -5,11 +5,10 @@
 
 use runtime::config::load_file;
 use runtime::energy::{load_mission_model, MissionModel};
+use runtime::mission::{replay, ChannelDiff, ReplayOptions, ReplayReport};
 use runtime::plugins::builtin_registry;
 use runtime::record::read_recording_file;
-use runtime::record::{
-    read_recording, replay, ConfigFile, RecorderOptions, ReplayOptions, ReplayReport,
-};
+use runtime::record::{read_recording, ConfigFile, RecorderOptions};
 use runtime::registry::PluginRegistry;
 use sim::outcome::SimOutcome;
 use sitl::mission::{simulate, SimOptions, SimRecording};
@@ -71,7 +70,7 @@ fn replay_with(recording_path: &Path, options: &ReplayOptions) -> ReplayReport {
     replay(&recording, model, &registry, options).unwrap()
 }
 
-fn channel<'a>(report: &'a ReplayReport, topic: &str) -> &'a runtime::record::ChannelDiff {
+fn channel<'a>(report: &'a ReplayReport, topic: &str) -> &'a ChannelDiff {
     report
         .channels
         .iter()

@@ -6,11 +6,13 @@
 
 mod governor;
 mod load;
+mod plan;
 pub(crate) mod suggest;
 mod validate;
 
 pub use governor::{BadGovernorConfig, GovernorConfig};
 pub use load::{load_file, load_str, span_at, ConfigFailure, LoadedConfig};
+pub use plan::{LandingBy, MissionPlan};
 pub use validate::{validate, ConfigIssue, IssuePath, Issues, PathSegment, PluginRules};
 
 use serde::{Deserialize, Serialize};

@@ -68,10 +68,12 @@ use power_models::battery::{BatteryError, BatteryEstimator};
 use power_models::planner::{level_of, solve, Plan, PlanError, PlanProblem, TaskLevel};
 use thiserror::Error;
 
+mod decision;
 mod events;
 mod replan;
 
 pub use crate::config::{BadGovernorConfig, GovernorConfig};
+pub use decision::{GovernorDecision, LevelMove};
 pub use events::{
     ChangeReason, Decision, GovernorEvent, LandNow, LevelChange, ReplanSummary, ReplanTrigger,
 };

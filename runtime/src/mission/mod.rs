@@ -3,11 +3,14 @@
 //! what a run logs.
 
 pub mod input_rates;
+pub mod replay;
 pub mod report;
 pub mod runner;
 pub mod sequencer;
 
-pub use report::{GovernorDecision, MissionLog};
+pub use crate::governor::GovernorDecision;
+pub use replay::{replay, ChannelDiff, ReplayError, ReplayOptions, ReplayReport};
+pub use report::MissionLog;
 pub use runner::{describe_mission, MissionRunner, RunnerError, RunnerOptions, StepReport};
 pub use sequencer::{
     AutopilotView, LandingBy, MissionEvent, MissionPlan, MissionSequencer, MissionStatus,

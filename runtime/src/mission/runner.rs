@@ -8,7 +8,7 @@
 //! harness in lockstep with its world on a [`VirtualScheduler`](crate::scheduler::VirtualScheduler).
 
 use super::input_rates::InputRateMeter;
-use super::report::{GovernorDecision, MissionLog};
+use super::report::MissionLog;
 use super::sequencer::{
     AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, SequencerInput,
 };
@@ -16,6 +16,7 @@ use crate::bus::{Publisher, Subscriber};
 use crate::camera::{CameraSource, CameraSourceError};
 use crate::clock::Timestamp;
 use crate::energy::MissionModel;
+use crate::governor::GovernorDecision;
 use crate::governor::{Governor, GovernorError, GovernorEvent};
 use crate::link::{FailsafeAction, LinkError, LinkStatus, LinkUpdate, MavlinkLink, VehicleCommand};
 use crate::record::channels::StepRecord;

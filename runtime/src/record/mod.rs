@@ -1,23 +1,20 @@
-//! Recording a mission to MCAP, replaying it, and serving it live to Foxglove.
+//! Recording a mission to MCAP, reading it back, and serving it live to Foxglove.
 //!
 //! A recording holds what the runtime was given (the loop's clock, the MAVLink it received, the
 //! camera frames it delivered, the depth frames a simulator published) and what it made of it
 //! (every recorded bus topic, the MAVLink it sent, governor decisions, QoS levels, battery,
 //! mission events), with the config files it flew as attachments and a header saying how to
-//! fly it again. [`replay`] re-runs the tasks on the inputs and compares the outputs.
+//! fly it again. `mission::replay` re-runs the tasks on the inputs and compares the outputs.
 
 pub mod channels;
 pub mod latency;
 pub mod reader;
 pub mod recorder;
-pub mod replay;
 
 pub use reader::{read_recording, read_recording_file, RecordedMessage, Recording};
 pub use recorder::{Recorder, RecorderOptions, RecordingSummary};
-pub use replay::{replay, ChannelDiff, ReplayError, ReplayOptions, ReplayReport};
 
-use crate::config::MissionConfig;
-use crate::mission::MissionPlan;
+use crate::config::{MissionConfig, MissionPlan};
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -92,6 +89,8 @@ pub struct RecordingHeader {
     pub plan: MissionPlan,
     /// Every phase's duration as flown (a simulation may override the config's).
     pub phase_durations_s: Vec<f64>,
+    /// The runner's `--fix` levels and LANDING_TARGET setting (its options; the runner's
+    /// caller sets them after `new`).
     pub fixed_levels: Vec<(String, f64)>,
     pub landing_target: bool,
     /// The runner had a camera.
@@ -109,7 +108,6 @@ impl RecordingHeader {
         seed: u64,
         plan: MissionPlan,
         config: &MissionConfig,
-        options: &crate::mission::RunnerOptions,
         camera: bool,
         config_file: String,
     ) -> Self {
@@ -120,8 +118,8 @@ impl RecordingHeader {
             seed,
             plan,
             phase_durations_s: config.mission.phases.iter().map(|p| p.duration_s).collect(),
-            fixed_levels: options.fixed_levels.clone(),
-            landing_target: options.landing_target,
+            fixed_levels: Vec::new(),
+            landing_target: false,
             camera,
             config_file,
             link_peer_known: false,

@@ -6,8 +6,8 @@ use super::channels::{self as ch, ChannelSpec, MavlinkBatch, MavlinkRecord, Step
 use super::{ConfigFile, RecordError, RecordingHeader, HEADER_METADATA};
 use crate::bus::{Bus, Message, Topic};
 use crate::clock::Timestamp;
+use crate::governor::GovernorDecision;
 use crate::link::LinkCapture;
-use crate::mission::GovernorDecision;
 use crate::scheduler::TaskStats;
 use crate::telemetry::BatteryTelemetry;
 use crate::topics::{

@@ -264,13 +264,14 @@ pub fn simulate(
             options.seed,
             plan,
             config,
-            &runner_options,
             true,
             record
                 .config_files
                 .first()
                 .map_or_else(String::new, |f| f.path.clone()),
         );
+        header.fixed_levels = runner_options.fixed_levels.clone();
+        header.landing_target = runner_options.landing_target;
         header.link_peer_known = runner.link().has_peer();
         let recorder = Recorder::start(&record.recorder, &header, &record.config_files)?;
         if let Some(port) = recorder.live_port() {

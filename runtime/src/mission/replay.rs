@@ -7,15 +7,15 @@
 //! time at their levels' periods, they see the same frames and telemetry but step at their
 //! nominal times, so a flight's replay shows that timing as differences too.
 
-use super::channels::{self as ch, MavlinkBatch, Role, StepRecord};
-use super::reader::{read_recording, RecordedMessage, Recording};
-use super::recorder::{Recorder, RecorderOptions};
-use super::RecordError;
+use super::{MissionRunner, RunnerError, RunnerOptions};
 use crate::camera::{CapturedFrame, MemorySource};
 use crate::clock::Timestamp;
 use crate::energy::MissionModel;
 use crate::link::{LinkConfig, MavlinkLink, ReplayFeed};
-use crate::mission::{MissionRunner, RunnerError, RunnerOptions};
+use crate::record::channels::{self as ch, MavlinkBatch, Role, StepRecord};
+use crate::record::reader::{read_recording, RecordedMessage, Recording};
+use crate::record::recorder::{Recorder, RecorderOptions};
+use crate::record::RecordError;
 use crate::registry::PluginRegistry;
 use crate::scheduler::SchedulerBuilder;
 use crate::topics::{CameraFrame, DepthFrame, DEPTH_FRAME};
@@ -228,7 +228,7 @@ pub fn replay(
         steps_replayed,
         replayed_until_s: replayed_until_ns as f64 * 1e-9,
         recording_truncated: recording.truncated.clone(),
-        capture_to_setpoint: super::latency::capture_to_setpoint(recording),
+        capture_to_setpoint: crate::record::latency::capture_to_setpoint(recording),
         stopped,
         channels: compare(recording, &replayed, replayed_until_ns),
     })
