@@ -19,6 +19,7 @@
 //! so a simulated link loss still runs deterministically.
 
 use crate::flight::{AutopilotCommand, CommandRejected, FlightMode, VehicleSnapshot};
+use autopilot_modes::Px4Mode;
 use mavlink::dialects::common::{MavCmd, MavMessage, MavResult, COMMAND_ACK_DATA, TIMESYNC_DATA};
 use mavlink::{MavHeader, MavlinkVersion};
 use std::io::{self, ErrorKind};
@@ -33,28 +34,6 @@ use messages::{
 pub use messages::{
     decode_command_long, decode_velocity_setpoint, gimbal_device_attitude_status, HOME_AMSL_M,
 };
-
-/// PX4's custom modes (`src/modules/commander/px4_custom_mode.h`), the simulated autopilot's
-/// own table: `custom_mode = sub_mode << 24 | main_mode << 16`.
-pub const PX4_MAIN_MODE_POSCTL: u8 = 3;
-pub const PX4_MAIN_MODE_AUTO: u8 = 4;
-pub const PX4_MAIN_MODE_OFFBOARD: u8 = 6;
-pub const PX4_AUTO_SUB_MODE_TAKEOFF: u8 = 2;
-pub const PX4_AUTO_SUB_MODE_LOITER: u8 = 3;
-pub const PX4_AUTO_SUB_MODE_LAND: u8 = 6;
-
-/// `custom_mode` of a PX4 main and sub mode.
-pub fn px4_custom_mode(main_mode: u8, sub_mode: u8) -> u32 {
-    (u32::from(sub_mode) << 24) | (u32::from(main_mode) << 16)
-}
-
-/// `(main_mode, sub_mode)` of a PX4 `custom_mode`.
-pub fn px4_mode_parts(custom_mode: u32) -> (u8, u8) {
-    (
-        ((custom_mode >> 16) & 0xff) as u8,
-        ((custom_mode >> 24) & 0xff) as u8,
-    )
-}
 
 /// Every CRC-valid MAVLink message in one datagram; garbage between frames is skipped.
 pub fn decode_datagram(datagram: &[u8]) -> Vec<(MavHeader, MavMessage)> {
@@ -512,23 +491,24 @@ fn take_due(next_s: &mut f64, time_s: f64, period_s: f64) -> bool {
     true
 }
 
-/// PX4 `custom_mode` for a simulated flight mode.
-pub fn px4_mode_of(mode: FlightMode) -> u32 {
+/// The PX4 mode a simulated flight mode reports itself as.
+pub fn px4_mode_of(mode: FlightMode) -> Px4Mode {
     match mode {
-        FlightMode::Hold => px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LOITER),
-        FlightMode::Takeoff => px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_TAKEOFF),
-        FlightMode::Offboard => px4_custom_mode(PX4_MAIN_MODE_OFFBOARD, 0),
-        FlightMode::Land => px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LAND),
+        FlightMode::Hold => Px4Mode::Loiter,
+        FlightMode::Takeoff => Px4Mode::Takeoff,
+        FlightMode::Offboard => Px4Mode::Offboard,
+        FlightMode::Land => Px4Mode::Land,
     }
 }
 
-/// The flight mode a PX4 main/sub mode pair names, when the simulator has it.
-pub fn flight_mode_of_px4(main_mode: u8, sub_mode: u8) -> Option<FlightMode> {
-    match (main_mode, sub_mode) {
-        (PX4_MAIN_MODE_OFFBOARD, _) => Some(FlightMode::Offboard),
-        (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LOITER) => Some(FlightMode::Hold),
-        (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_TAKEOFF) => Some(FlightMode::Takeoff),
-        (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LAND) => Some(FlightMode::Land),
-        _ => None,
+/// The flight mode a PX4 mode names, when the simulator has it (it has no position mode and
+/// no precision landing of its own).
+pub fn flight_mode_of_px4(mode: Px4Mode) -> Option<FlightMode> {
+    match mode {
+        Px4Mode::Offboard => Some(FlightMode::Offboard),
+        Px4Mode::Loiter => Some(FlightMode::Hold),
+        Px4Mode::Takeoff => Some(FlightMode::Takeoff),
+        Px4Mode::Land => Some(FlightMode::Land),
+        Px4Mode::Position | Px4Mode::PrecisionLand => None,
     }
 }

@@ -250,7 +250,7 @@ fn setpoints_other_than_velocity_are_refused() {
         decode_command_long(&reboot),
         Err(MavResult::MAV_RESULT_UNSUPPORTED)
     );
-    assert_eq!(px4_mode_of(FlightMode::Land), 0x0604_0000);
+    assert_eq!(px4_mode_of(FlightMode::Land).custom_mode(), 0x0604_0000);
 }
 
 /// One lockstep run: the runtime answers each tick with a velocity setpoint derived from

@@ -15,13 +15,8 @@
 //! LANDING_TARGET ([`command_message`]); [`SetpointSequencer`] turns the landing logic's
 //! [`LandingSetpoint`] into commands.
 //!
-//! PX4 custom modes (`src/modules/commander/px4_custom_mode.h`): `custom_mode` is a union whose
-//! bytes 2 and 3 are `main_mode` and `sub_mode`, i.e. `custom_mode = sub << 24 | main << 16`.
-//! Main modes: MANUAL 1, ALTCTL 2, POSCTL 3, AUTO 4, ACRO 5, OFFBOARD 6, STABILIZED 7.
-//! AUTO sub modes: READY 1, TAKEOFF 2, LOITER 3, MISSION 4, RTL 5, LAND 6, FOLLOW_TARGET 8,
-//! PRECLAND 9. So OFFBOARD = 0x0006_0000, POSCTL = 0x0003_0000, AUTO.TAKEOFF = 0x0204_0000,
-//! AUTO.LOITER = 0x0304_0000, AUTO.LAND = 0x0604_0000, AUTO.PRECLAND = 0x0904_0000.
-//! ArduPilot copter modes (`ArduCopter/mode.h`) are plain numbers: LOITER 5, GUIDED 4, LAND 9.
+//! PX4's and ArduCopter's mode numbers are the `autopilot_modes` crate's table, which the
+//! simulated autopilot obeys too.
 
 use crate::telemetry::BatteryTelemetry;
 use crate::topics::{LandingSetpoint, VehicleState};
@@ -29,6 +24,7 @@ use algorithms::control::landing::LandingMode;
 use algorithms::estimation::camera_mount::camera_attitude_of_gimbal;
 use algorithms::estimation::pad_height::PadHeightEstimator;
 use algorithms::estimation::projection::Attitude;
+use autopilot_modes::{ArduCopterMode, Px4Mode};
 use mavlink::dialects::common::{
     GimbalDeviceFlags, MavAutopilot, MavCmd, MavFrame, MavLandedState, MavMessage, MavModeFlag,
     MavResult, MavSensorOrientation, MavState, MavType, PositionTargetTypemask, ATTITUDE_DATA,
@@ -37,20 +33,6 @@ use mavlink::dialects::common::{
     LOCAL_POSITION_NED_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA, SYS_STATUS_DATA,
 };
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
-
-/// PX4 main modes (px4_custom_mode.h `PX4_CUSTOM_MAIN_MODE_*`).
-pub const PX4_MAIN_MODE_POSCTL: u8 = 3;
-pub const PX4_MAIN_MODE_AUTO: u8 = 4;
-pub const PX4_MAIN_MODE_OFFBOARD: u8 = 6;
-/// PX4 AUTO sub modes (px4_custom_mode.h `PX4_CUSTOM_SUB_MODE_AUTO_*`).
-pub const PX4_AUTO_SUB_MODE_TAKEOFF: u8 = 2;
-pub const PX4_AUTO_SUB_MODE_LOITER: u8 = 3;
-pub const PX4_AUTO_SUB_MODE_LAND: u8 = 6;
-pub const PX4_AUTO_SUB_MODE_PRECLAND: u8 = 9;
-/// ArduCopter flight mode numbers.
-pub const ARDUCOPTER_MODE_GUIDED: u32 = 4;
-pub const ARDUCOPTER_MODE_LOITER: u32 = 5;
-pub const ARDUCOPTER_MODE_LAND: u32 = 9;
 
 /// MAV_COMP_ID_ONBOARD_COMPUTER: the companion's component id.
 pub const ONBOARD_COMPUTER_COMPONENT_ID: u8 = 191;
@@ -63,19 +45,6 @@ pub const RANGEFINDER_STALE_S: f64 = 0.5;
 pub const GIMBAL_STALE_S: f64 = 0.5;
 /// Velocity samples further apart than this are not differenced (a gap, not a rate).
 const MAX_ACCELERATION_DT_S: f64 = 0.5;
-
-/// `custom_mode` for a PX4 main mode and sub mode.
-pub fn px4_custom_mode(main_mode: u8, sub_mode: u8) -> u32 {
-    (u32::from(sub_mode) << 24) | (u32::from(main_mode) << 16)
-}
-
-/// `(main_mode, sub_mode)` of a PX4 `custom_mode`.
-pub fn px4_mode_parts(custom_mode: u32) -> (u8, u8) {
-    (
-        ((custom_mode >> 16) & 0xff) as u8,
-        ((custom_mode >> 24) & 0xff) as u8,
-    )
-}
 
 /// Which autopilot firmware speaks, from HEARTBEAT.autopilot.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -146,21 +115,19 @@ pub fn decode_heartbeat(heartbeat: &HEARTBEAT_DATA) -> Option<AutopilotStatus> {
 /// The runtime's name for an autopilot's `custom_mode`.
 pub fn decode_custom_mode(kind: AutopilotKind, custom_mode: u32) -> AutopilotMode {
     match kind {
-        AutopilotKind::Px4 => match px4_mode_parts(custom_mode) {
-            (PX4_MAIN_MODE_OFFBOARD, _) => AutopilotMode::Offboard,
-            (PX4_MAIN_MODE_POSCTL, _) => AutopilotMode::Position,
-            (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LAND | PX4_AUTO_SUB_MODE_PRECLAND) => {
-                AutopilotMode::Land
-            }
-            (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_TAKEOFF) => AutopilotMode::Takeoff,
-            (PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LOITER) => AutopilotMode::Hold,
-            _ => AutopilotMode::Other { custom_mode },
+        AutopilotKind::Px4 => match Px4Mode::from_custom_mode(custom_mode) {
+            Some(Px4Mode::Offboard) => AutopilotMode::Offboard,
+            Some(Px4Mode::Position) => AutopilotMode::Position,
+            Some(Px4Mode::Land | Px4Mode::PrecisionLand) => AutopilotMode::Land,
+            Some(Px4Mode::Takeoff) => AutopilotMode::Takeoff,
+            Some(Px4Mode::Loiter) => AutopilotMode::Hold,
+            None => AutopilotMode::Other { custom_mode },
         },
-        AutopilotKind::ArduPilot => match custom_mode {
-            ARDUCOPTER_MODE_GUIDED => AutopilotMode::Offboard,
-            ARDUCOPTER_MODE_LAND => AutopilotMode::Land,
-            ARDUCOPTER_MODE_LOITER => AutopilotMode::Hold,
-            _ => AutopilotMode::Other { custom_mode },
+        AutopilotKind::ArduPilot => match ArduCopterMode::from_number(custom_mode) {
+            Some(ArduCopterMode::Guided) => AutopilotMode::Offboard,
+            Some(ArduCopterMode::Land) => AutopilotMode::Land,
+            Some(ArduCopterMode::Loiter) => AutopilotMode::Hold,
+            None => AutopilotMode::Other { custom_mode },
         },
         AutopilotKind::Other(_) => AutopilotMode::Other { custom_mode },
     }
@@ -620,10 +587,13 @@ pub fn command_message(
         })
     };
     let custom_mode_flag = f32::from(MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED.bits());
-    let set_mode = |px4_main: u8, px4_sub: u8, ardupilot_mode: u32| {
+    let set_mode = |px4: Px4Mode, arducopter: ArduCopterMode| {
         let (param2, param3) = match target.kind {
-            AutopilotKind::ArduPilot => (ardupilot_mode as f32, 0.0),
-            _ => (f32::from(px4_main), f32::from(px4_sub)),
+            AutopilotKind::ArduPilot => (arducopter.number() as f32, 0.0),
+            _ => {
+                let (main_mode, sub_mode) = px4.parts();
+                (f32::from(main_mode), f32::from(sub_mode))
+            }
         };
         long(
             MavCmd::MAV_CMD_DO_SET_MODE,
@@ -656,12 +626,8 @@ pub fn command_message(
             MavCmd::MAV_CMD_NAV_LAND,
             [0.0, 0.0, 0.0, f32::NAN, f32::NAN, f32::NAN, f32::NAN],
         ),
-        VehicleCommand::PrecisionLand => set_mode(
-            PX4_MAIN_MODE_AUTO,
-            PX4_AUTO_SUB_MODE_PRECLAND,
-            ARDUCOPTER_MODE_LAND,
-        ),
-        VehicleCommand::SetOffboard => set_mode(PX4_MAIN_MODE_OFFBOARD, 0, ARDUCOPTER_MODE_GUIDED),
+        VehicleCommand::PrecisionLand => set_mode(Px4Mode::PrecisionLand, ArduCopterMode::Land),
+        VehicleCommand::SetOffboard => set_mode(Px4Mode::Offboard, ArduCopterMode::Guided),
         VehicleCommand::SetMessageInterval {
             message_id,
             interval_us,
@@ -677,11 +643,7 @@ pub fn command_message(
                 0.0,
             ],
         ),
-        VehicleCommand::SetHold => set_mode(
-            PX4_MAIN_MODE_AUTO,
-            PX4_AUTO_SUB_MODE_LOITER,
-            ARDUCOPTER_MODE_LOITER,
-        ),
+        VehicleCommand::SetHold => set_mode(Px4Mode::Loiter, ArduCopterMode::Loiter),
         VehicleCommand::VelocityNed {
             velocity_ned_m_s,
             yaw_rad,

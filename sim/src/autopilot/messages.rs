@@ -14,10 +14,8 @@ use mavlink::dialects::common::{
 };
 use nalgebra::Vector3;
 
-use super::{
-    flight_mode_of_px4, px4_custom_mode, px4_mode_of, px4_mode_parts, RANGEFINDER_MAX_CM,
-    RANGEFINDER_MIN_CM,
-};
+use super::{flight_mode_of_px4, px4_mode_of, RANGEFINDER_MAX_CM, RANGEFINDER_MIN_CM};
+use autopilot_modes::{px4_custom_mode, Px4Mode};
 
 pub(super) fn heartbeat(snapshot: &VehicleSnapshot) -> MavMessage {
     let mut base_mode = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
@@ -30,7 +28,7 @@ pub(super) fn heartbeat(snapshot: &VehicleSnapshot) -> MavMessage {
         base_mode |= MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
     }
     MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-        custom_mode: px4_mode_of(snapshot.mode),
+        custom_mode: px4_mode_of(snapshot.mode).custom_mode(),
         mavtype: MavType::MAV_TYPE_QUADROTOR,
         autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
         base_mode,
@@ -302,8 +300,8 @@ pub fn decode_command_long(long: &COMMAND_LONG_DATA) -> Result<AutopilotCommand,
                 return Err(MavResult::MAV_RESULT_DENIED);
             }
             let custom_mode = px4_custom_mode(long.param2 as u8, long.param3 as u8);
-            let (main_mode, sub_mode) = px4_mode_parts(custom_mode);
-            flight_mode_of_px4(main_mode, sub_mode)
+            Px4Mode::from_custom_mode(custom_mode)
+                .and_then(flight_mode_of_px4)
                 .map(AutopilotCommand::SetMode)
                 .ok_or(MavResult::MAV_RESULT_DENIED)
         }

@@ -16,26 +16,6 @@ fn heartbeat(autopilot: MavAutopilot, base_mode: MavModeFlag, custom_mode: u32) 
 }
 
 #[test]
-fn px4_custom_modes_match_px4_custom_mode_h() {
-    assert_eq!(px4_custom_mode(PX4_MAIN_MODE_OFFBOARD, 0), 0x0006_0000);
-    assert_eq!(px4_custom_mode(PX4_MAIN_MODE_OFFBOARD, 0), 393_216);
-    assert_eq!(px4_custom_mode(PX4_MAIN_MODE_POSCTL, 0), 0x0003_0000);
-    assert_eq!(
-        px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LAND),
-        0x0604_0000
-    );
-    assert_eq!(
-        px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_TAKEOFF),
-        0x0204_0000
-    );
-    assert_eq!(
-        px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_AUTO_SUB_MODE_LOITER),
-        0x0304_0000
-    );
-    assert_eq!(px4_mode_parts(0x0604_0000), (4, 6));
-}
-
-#[test]
 fn heartbeat_decodes_px4_and_ardupilot_modes_and_armed() {
     let custom = MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
     let armed = custom | MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
