@@ -1,7 +1,7 @@
 //! `qosrt check`: validate a config, then summarise it for a person or as JSON.
 
 use runtime::catalog::PluginCatalog;
-use runtime::config::{load_file, ConfigFailure, LoadedConfig, MissionConfig};
+use runtime::config::{load_file, ConfigFailure, LoadedConfig, MissionConfig, PhaseKind};
 use runtime::dataflow::{task_graph, TaskGraph};
 use serde::Serialize;
 use std::path::Path;
@@ -98,6 +98,8 @@ struct BatterySummary {
 #[derive(Serialize)]
 struct PhaseSummary<'a> {
     name: &'a str,
+    /// As the file names it, else by position.
+    kind: PhaseKind,
     duration_s: f64,
     duration_by_level: Option<&'a runtime::config::DurationByLevel>,
     flight_power_w: f64,
@@ -150,8 +152,10 @@ impl<'a> Summary<'a> {
                 .mission
                 .phases
                 .iter()
-                .map(|phase| PhaseSummary {
+                .zip(config.mission.phase_kinds())
+                .map(|(phase, kind)| PhaseSummary {
                     name: &phase.name,
+                    kind,
                     duration_s: phase.duration_s,
                     duration_by_level: phase.duration_by_level.as_ref(),
                     flight_power_w: config.flight.power_w(&phase.name).unwrap_or(f64::NAN),
@@ -237,8 +241,9 @@ fn human_summary(loaded: &LoadedConfig, graph: TaskGraph) -> String {
             None => format!("{} s", fmt_number(phase.duration_s)),
         };
         out += &format!(
-            "  {:<10} {:<30} flight {:>6.1} W   tasks: {}\n",
+            "  {:<10} {:<8} {:<30} flight {:>6.1} W   tasks: {}\n",
             phase.name,
+            phase.kind,
             duration,
             phase.flight_power_w,
             phase.tasks.join(", ")

@@ -74,6 +74,24 @@ const fn at_start(message: &'static str) -> Expect {
 
 const BAD_CASES: &[BadCase] = &[
     BadCase {
+        name: "a phase kind that is none of transit, track, land",
+        replace: &[("kind = \"land\"", "kind = \"landing\"")],
+        expect: &[at(
+            "\"landing\"",
+            1,
+            "unknown value `landing`; did you mean `land`?; expected one of: transit, track, land",
+        )],
+    },
+    BadCase {
+        name: "a landing phase before the last",
+        replace: &[("kind = \"track\"", "kind = \"land\"")],
+        expect: &[at(
+            "\"land\"",
+            1,
+            "phase `tracking` is of kind `land`, but a land phase must come last (the mission ends at touchdown)",
+        )],
+    },
+    BadCase {
         name: "trigger on an input the task does not read",
         replace: &[(
             "trigger = \"input:vision/landing_marker\"",
@@ -449,6 +467,7 @@ fn the_json_summary_says_what_the_file_says() {
     assert_eq!(json_phases.len(), file_phases.len());
     for (json_phase, file_phase) in json_phases.iter().zip(file_phases) {
         assert_eq!(json_phase["name"], file_phase["name"].as_str().unwrap());
+        assert_eq!(json_phase["kind"], file_phase["kind"].as_str().unwrap());
         assert_eq!(
             json_phase["duration_s"].as_f64().unwrap(),
             file_phase["duration_s"].as_float().unwrap()

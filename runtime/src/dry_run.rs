@@ -252,7 +252,7 @@ pub fn dry_run(
 
 /// The dry run's vehicle: a PX4 hovering at [`HOVER_HEIGHT_M`] in position mode, speaking
 /// MAVLink over the loopback as an autopilot does (system 1, component 1).
-struct SyntheticVehicle {
+pub(crate) struct SyntheticVehicle {
     socket: UdpSocket,
     to: SocketAddr,
     sequence: u8,
@@ -260,7 +260,7 @@ struct SyntheticVehicle {
 }
 
 impl SyntheticVehicle {
-    fn new(to: SocketAddr) -> std::io::Result<Self> {
+    pub(crate) fn new(to: SocketAddr) -> std::io::Result<Self> {
         Ok(Self {
             socket: UdpSocket::bind("127.0.0.1:0")?,
             to,
@@ -271,7 +271,11 @@ impl SyntheticVehicle {
 
     /// Attitude and position every call, the heartbeat once a second, and the battery
     /// (volts, amps, mAh consumed) when given.
-    fn send(&mut self, time_s: f64, battery: Option<(f64, f64, f64)>) -> std::io::Result<()> {
+    pub(crate) fn send(
+        &mut self,
+        time_s: f64,
+        battery: Option<(f64, f64, f64)>,
+    ) -> std::io::Result<()> {
         let state = hovering_vehicle();
         let time_boot_ms = (time_s * 1000.0) as u32;
         if self
@@ -280,7 +284,7 @@ impl SyntheticVehicle {
         {
             self.sent_heartbeat_s = Some(time_s);
             self.message(&MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-                custom_mode: 3 << 16, // PX4 POSCTL
+                custom_mode: autopilot_modes::Px4Mode::Position.custom_mode(),
                 mavtype: MavType::MAV_TYPE_QUADROTOR,
                 autopilot: MavAutopilot::MAV_AUTOPILOT_PX4,
                 base_mode: MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED

@@ -90,12 +90,73 @@ pub struct Mission {
 #[serde(deny_unknown_fields)]
 pub struct Phase {
     pub name: String,
+    /// What the phase is: `transit` (fly out to the meeting point), `track` (follow the
+    /// tractor for `duration_s`) or `land` (land on it). Without it, by position: the first of
+    /// several phases is the transit, the last the landing, those between track.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kind: Option<PhaseKind>,
     /// Expected duration at the task levels that do not change it.
     pub duration_s: f64,
     /// When one task's QoS changes how long the phase lasts (a faster marker detector lands
     /// sooner), the duration at each of that task's levels, lowest QoS first.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub duration_by_level: Option<DurationByLevel>,
+}
+
+/// What a phase is, which says how it ends and who steers in it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PhaseKind {
+    /// Fly out to the tractor's meeting point at the follow height; ends on arrival.
+    Transit,
+    /// Follow the tractor; ends after the phase's duration.
+    Track,
+    /// Descend onto the pad; ends at touchdown.
+    Land,
+}
+
+impl PhaseKind {
+    /// The kind of phase `index` of `count` where the config names none: the first of several
+    /// is the transit, the last the landing, those between track (a single phase lands).
+    pub fn by_position(index: usize, count: usize) -> PhaseKind {
+        if index + 1 >= count {
+            PhaseKind::Land
+        } else if index == 0 {
+            PhaseKind::Transit
+        } else {
+            PhaseKind::Track
+        }
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PhaseKind::Transit => "transit",
+            PhaseKind::Track => "track",
+            PhaseKind::Land => "land",
+        }
+    }
+}
+
+impl fmt::Display for PhaseKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.pad(self.as_str())
+    }
+}
+
+impl Mission {
+    /// Every phase's kind, in flight order: as the config names it, else by position.
+    pub fn phase_kinds(&self) -> Vec<PhaseKind> {
+        let count = self.phases.len();
+        self.phases
+            .iter()
+            .enumerate()
+            .map(|(index, phase)| {
+                phase
+                    .kind
+                    .unwrap_or_else(|| PhaseKind::by_position(index, count))
+            })
+            .collect()
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -441,6 +502,69 @@ mod tests {
         let mut periodic = detection.clone();
         periodic.trigger = TaskTrigger::Period;
         assert_eq!(periodic.running_knob_value(10.0, Some(4.0)), 10.0);
+    }
+
+    /// Old configs name no kinds: the first of several phases is the transit, the last the
+    /// landing, those between track, as the reference mission names them.
+    #[test]
+    fn phases_without_a_kind_take_it_from_their_position() {
+        let named = reference().mission.phase_kinds();
+        assert_eq!(
+            named,
+            [PhaseKind::Transit, PhaseKind::Track, PhaseKind::Land]
+        );
+        let unnamed: String = REFERENCE
+            .lines()
+            .filter(|line| !line.starts_with("kind = "))
+            .map(|line| format!("{line}\n"))
+            .collect();
+        let config = load_str(&unnamed, None, &PluginCatalog::builtin()).unwrap();
+        assert!(config.mission.phases.iter().all(|p| p.kind.is_none()));
+        assert_eq!(config.mission.phase_kinds(), named);
+        let kinds = |count| {
+            (0..count)
+                .map(|index| PhaseKind::by_position(index, count))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(kinds(1), [PhaseKind::Land]);
+        assert_eq!(kinds(2), [PhaseKind::Transit, PhaseKind::Land]);
+        assert_eq!(
+            kinds(4),
+            [
+                PhaseKind::Transit,
+                PhaseKind::Track,
+                PhaseKind::Track,
+                PhaseKind::Land
+            ]
+        );
+    }
+
+    /// Kinds that name a mission the sequencer can fly: tracking straight from take-off (no
+    /// transit) is one; a transit after tracking, or a mission that never lands, is not.
+    #[test]
+    fn phase_kinds_must_fly_in_order() {
+        let with_kinds = |kinds: [&str; 3]| {
+            let mut text = REFERENCE.to_string();
+            for (index, from) in ["transit", "track", "land"].iter().enumerate() {
+                text = text.replacen(&format!("kind = \"{from}\""), &format!("kind = {index}"), 1);
+            }
+            for (index, to) in kinds.iter().enumerate() {
+                text = text.replacen(&format!("kind = {index}"), &format!("kind = \"{to}\""), 1);
+            }
+            load_str(&text, None, &PluginCatalog::builtin())
+        };
+        assert!(with_kinds(["track", "track", "land"]).is_ok());
+        for bad in [
+            ["track", "transit", "land"],
+            ["transit", "track", "track"],
+            ["transit", "land", "land"],
+        ] {
+            let failure = with_kinds(bad).expect_err(&format!("{bad:?} is refused"));
+            assert!(
+                format!("{failure:?}").contains("is of kind"),
+                "{bad:?}: {failure:?}"
+            );
+        }
     }
 
     fn reference() -> MissionConfig {

@@ -1,13 +1,16 @@
 //! The sequencer's plan: the phases in flight order, the flight out, who lands, and whether
 //! qosrt commands the vehicle at all; made from the config and the command line.
 
-use super::MissionConfig;
+use super::{MissionConfig, PhaseKind};
 
 /// The sequencer's configuration.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MissionPlan {
     /// Phase names in flight order.
     pub phase_names: Vec<String>,
+    /// Each phase's kind (a recording made before kinds had none: by position).
+    #[serde(default)]
+    pub phase_kinds: Vec<PhaseKind>,
     /// How long each middle phase flies; the first and last end on events (ignored there).
     pub phase_durations_s: Vec<f64>,
     /// Height above the take-off point at which the vehicle flies out and follows.
@@ -49,10 +52,14 @@ impl MissionPlan {
             phases.iter().map(|p| p.name.clone()).collect(),
             phases.iter().map(|p| p.duration_s).collect(),
         );
+        plan.phase_kinds = config.mission.phase_kinds();
         plan.cruise_altitude_m = config
             .plugin_number("landing_guidance", "initial_altitude_m")
             .unwrap_or(algorithms::control::landing::LandingConfig::default().initial_height_m);
-        let last_phase = phases.last().map(|p| p.name.as_str());
+        let last_phase = plan
+            .landing_phase()
+            .and_then(|index| phases.get(index))
+            .map(|p| p.name.as_str());
         let steered = config.tasks.iter().any(|task| {
             task.plugin == "landing_guidance"
                 && last_phase.is_some_and(|last| task.phases.iter().any(|p| p == last))
@@ -66,9 +73,13 @@ impl MissionPlan {
         plan
     }
 
-    /// A plan with our defaults for the given phases.
+    /// A plan with our defaults for the given phases, their kinds by position.
     pub fn new(phase_names: Vec<String>, phase_durations_s: Vec<f64>) -> Self {
+        let count = phase_names.len();
         Self {
+            phase_kinds: (0..count)
+                .map(|index| PhaseKind::by_position(index, count))
+                .collect(),
             phase_names,
             phase_durations_s,
             cruise_altitude_m: 8.5,
@@ -84,6 +95,22 @@ impl MissionPlan {
             landing: LandingBy::Vision,
             only_phase: None,
         }
+    }
+
+    /// The kind of phase `index`.
+    pub fn kind(&self, index: usize) -> Option<PhaseKind> {
+        let count = self.phase_names.len();
+        (index < count).then(|| {
+            self.phase_kinds
+                .get(index)
+                .copied()
+                .unwrap_or_else(|| PhaseKind::by_position(index, count))
+        })
+    }
+
+    /// The landing phase: the last, where the config's kinds are valid.
+    pub fn landing_phase(&self) -> Option<usize> {
+        (0..self.phase_names.len()).rfind(|&index| self.kind(index) == Some(PhaseKind::Land))
     }
 }
 

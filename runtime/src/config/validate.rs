@@ -2,7 +2,7 @@
 //! the key path of the value that breaks it, which the loader turns into a line and column.
 
 use super::suggest::did_you_mean;
-use super::{Knob, MissionConfig, Resource, TaskConfig};
+use super::{Knob, Mission, MissionConfig, PhaseKind, Resource, TaskConfig};
 use std::collections::HashSet;
 use std::fmt;
 
@@ -129,6 +129,41 @@ fn check_positive(value: f64, what: &str, path: &IssuePath, issues: &mut Issues)
     }
 }
 
+/// The phases fly in the order the sequencer knows: at most one transit, first; then the
+/// tracking phases; one landing, last (the mission ends at touchdown).
+fn check_phase_kinds(mission: &Mission, path: &IssuePath, issues: &mut Issues) {
+    let kinds = mission.phase_kinds();
+    let count = kinds.len();
+    for (index, kind) in kinds.iter().enumerate() {
+        // Located at the phase's `kind` where it names one, else at the phase.
+        let at = {
+            let phase = path.key("phase").index(index);
+            if mission.phases[index].kind.is_some() {
+                phase.key("kind")
+            } else {
+                phase
+            }
+        };
+        let name = &mission.phases[index].name;
+        let misplaced = match kind {
+            PhaseKind::Transit if index > 0 => Some("a transit phase must come first"),
+            PhaseKind::Land if index + 1 < count => {
+                Some("a land phase must come last (the mission ends at touchdown)")
+            }
+            PhaseKind::Track | PhaseKind::Transit if index + 1 == count => {
+                Some("the last phase must be of kind `land` (the mission ends at touchdown)")
+            }
+            _ => None,
+        };
+        if let Some(why) = misplaced {
+            issues.push(
+                &at,
+                format!("phase `{name}` is of kind `{kind}`, but {why}; the kinds by position are transit, track…, land"),
+            );
+        }
+    }
+}
+
 fn check_mission(config: &MissionConfig, path: &IssuePath, issues: &mut Issues) {
     let mission = &config.mission;
     if mission.name.trim().is_empty() {
@@ -149,6 +184,7 @@ fn check_mission(config: &MissionConfig, path: &IssuePath, issues: &mut Issues) 
             "the mission needs at least one [[mission.phase]]",
         );
     }
+    check_phase_kinds(mission, path, issues);
     let mut seen = HashSet::new();
     for (index, phase) in mission.phases.iter().enumerate() {
         let phase_path = path.key("phase").index(index);

@@ -183,6 +183,9 @@ pub struct Governor {
     /// Per phase of the mission, the levels in force (past phases keep their last levels).
     levels: Vec<Vec<TaskLevel>>,
     progress: MissionProgress,
+    /// The phase flying, as the sequencer last said ([`Governor::enter_phase`] or a sample's
+    /// progress): its levels are the ones in force, whether or not telemetry has come since.
+    phase_in_flight: usize,
     correction_ratio: f64,
     ignored_power_samples: u64,
     first_time_s: Option<f64>,
@@ -253,6 +256,7 @@ impl Governor {
             initial_plan,
             levels,
             progress: MissionProgress::start(),
+            phase_in_flight: 0,
             correction_ratio: 1.0,
             ignored_power_samples: 0,
             first_time_s: None,
@@ -346,6 +350,7 @@ impl Governor {
         }
         let phase_started = progress.phase != self.progress.phase;
         self.progress = progress;
+        self.phase_in_flight = self.phase_in_flight.max(progress.phase);
         self.last_time_s = Some(time_s);
         if let Some(measured_w) = battery.power_w() {
             self.update_correction(measured_w, time_s);
@@ -363,10 +368,28 @@ impl Governor {
         Ok(events)
     }
 
+    /// The sequencer started `phase`: its levels are in force from now, before any telemetry
+    /// says so (the re-plan at a phase's start waits for the next sample, which prices the
+    /// interval just flown).
+    pub fn enter_phase(&mut self, phase: usize) -> Result<(), GovernorError> {
+        let phase_count = self.problem.phases.len();
+        if phase >= phase_count {
+            return Err(GovernorError::UnknownPhase { phase, phase_count });
+        }
+        if phase < self.phase_in_flight {
+            return Err(GovernorError::PhaseWentBack {
+                from: self.phase_in_flight,
+                to: phase,
+            });
+        }
+        self.phase_in_flight = phase;
+        Ok(())
+    }
+
     /// The levels in force for the phase in flight: what the scheduler applies. One entry per
     /// task active in the phase; `task` indexes the config's tasks, `level` their levels.
     pub fn current_levels(&self) -> &[TaskLevel] {
-        &self.levels[self.progress.phase]
+        &self.levels[self.phase_in_flight]
     }
 
     /// The level in force for `task` in the phase in flight; None if it does not run in it.
@@ -376,7 +399,7 @@ impl Governor {
 
     /// The planned levels of the phase in flight and every later phase, in order.
     pub fn planned_levels(&self) -> &[Vec<TaskLevel>] {
-        &self.levels[self.progress.phase..]
+        &self.levels[self.phase_in_flight..]
     }
 
     /// The levels of any phase: planned for a later one, last in force for a past one.

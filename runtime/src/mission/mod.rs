@@ -16,3 +16,6 @@ pub use sequencer::{
     AutopilotView, LandingBy, MissionEvent, MissionPlan, MissionSequencer, MissionStatus,
     SequencerInput,
 };
+
+#[cfg(test)]
+mod tests;

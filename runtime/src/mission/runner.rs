@@ -10,7 +10,8 @@
 use super::input_rates::InputRateMeter;
 use super::report::MissionLog;
 use super::sequencer::{
-    AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, SequencerInput,
+    AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, PhaseKind,
+    SequencerInput,
 };
 use crate::bus::{Publisher, Subscriber};
 use crate::camera::{CameraSource, CameraSourceError};
@@ -581,19 +582,22 @@ impl<S: TaskScheduler> MissionRunner<S> {
             return Ok(());
         }
         self.phase = phase;
-        let phases = &self.model.config.mission.phases;
+        // The sequencer's change reaches the tasks, the scheduler and the governor at once.
         match phase {
             Some(index) => {
-                let name = phases[index].name.clone();
+                let name = self.model.config.mission.phases[index].name.clone();
                 self.phase_topic.publish(
                     now,
                     MissionPhase {
                         index,
                         name: Arc::from(name.as_str()),
-                        landing: index + 1 == phases.len(),
+                        landing: self.sequencer.plan().kind(index) == Some(PhaseKind::Land),
                     },
                 );
                 self.scheduler.set_phase(&PhaseGate::Phase(name));
+                self.governor
+                    .enter_phase(index)
+                    .map_err(RunnerError::Governor)?;
             }
             None => self.scheduler.set_phase(&PhaseGate::NoPhase),
         }

@@ -4,10 +4,11 @@
 //! what the link reports and what the landing task publishes, and sends the commands it returns.
 //! The simulator and `qosrt run --mavlink` drive the same sequencer.
 //!
-//! Phases follow the config's `[[mission.phase]]` order. The first phase ends when the vehicle
-//! is over the tractor's meeting point at the follow height; a middle phase ends after its
-//! configured duration; the last one ends at touchdown. A "land now" from the governor skips
-//! straight to the last phase.
+//! Phases follow the config's `[[mission.phase]]` order and end by their kind: a transit when
+//! the vehicle is over the tractor's meeting point at the follow height, a tracking phase after
+//! its configured duration, the landing at touchdown. A "land now" from the governor skips
+//! straight to the landing phase. The sequencer is the one owner of the phase flying: the runner
+//! hands each change to the scheduler and the governor as it happens.
 //!
 //! Link loss: nothing can be sent, so the sequencer only records it; PX4 leaves offboard by
 //! itself when setpoints stop (COM_OF_LOSS_T) and holds. When the link returns the sequencer
@@ -21,7 +22,7 @@
 //! good. [`MissionSequencer::request_landing`] (the run's time is up, Ctrl-C) lands the vehicle
 //! where it is with the autopilot's land mode.
 
-pub use crate::config::{LandingBy, MissionPlan};
+pub use crate::config::{LandingBy, MissionPlan, PhaseKind};
 pub use crate::link::{AutopilotKind, AutopilotMode, VehicleCommand};
 use crate::topics::LandingSetpoint;
 use nalgebra::Vector3;
@@ -242,7 +243,7 @@ impl MissionSequencer {
         let (true, Some(autopilot)) = (input.link_up, input.autopilot) else {
             return (commands, events);
         };
-        let last_phase = self.plan.phase_names.len().saturating_sub(1);
+        let landing_phase = self.in_phase_of_kind(PhaseKind::Land);
         if matches!(self.stage, Stage::Landing { .. }) {
             self.land_seen |= autopilot.mode == AutopilotMode::Land;
         }
@@ -361,9 +362,7 @@ impl MissionSequencer {
                     };
                 }
             }
-            Stage::Flying
-                if self.plan.landing != LandingBy::Vision && self.phase == Some(last_phase) =>
-            {
+            Stage::Flying if self.plan.landing != LandingBy::Vision && landing_phase => {
                 let precise = self.plan.landing == LandingBy::AutopilotPrecision;
                 let reason = if precise {
                     "the autopilot's precision landing on the tracker's LANDING_TARGET"
@@ -397,7 +396,7 @@ impl MissionSequencer {
                 let touchdown = autopilot.landed
                     || since_s
                         .is_some_and(|since_s| now_s - since_s >= self.plan.touchdown_confirm_s);
-                if self.phase == Some(last_phase) && touchdown {
+                if landing_phase && touchdown {
                     events.push(MissionEvent::Touchdown);
                     commands.push(VehicleCommand::Land);
                     self.stage = Stage::Landing {
@@ -457,13 +456,12 @@ impl MissionSequencer {
             }
             return;
         }
-        let last_phase = self.plan.phase_names.len().saturating_sub(1);
         match self.phase {
             None if autopilot.armed && !autopilot.landed => {
                 events.push(MissionEvent::TookOff);
                 self.start_phase(0, now_s, events);
             }
-            Some(phase) if phase < last_phase => {
+            Some(phase) if self.plan.kind(phase) != Some(PhaseKind::Land) => {
                 let duration_s = self.plan.phase_durations_s.get(phase).copied();
                 if now_s - self.phase_started_s >= duration_s.unwrap_or(0.0) {
                     self.start_phase(phase + 1, now_s, events);
@@ -475,6 +473,11 @@ impl MissionSequencer {
             }
             _ => {}
         }
+    }
+
+    /// Whether the phase flying is of `kind`.
+    fn in_phase_of_kind(&self, kind: PhaseKind) -> bool {
+        self.phase.and_then(|phase| self.plan.kind(phase)) == Some(kind)
     }
 
     fn start_phase(&mut self, phase: usize, now_s: f64, events: &mut Vec<MissionEvent>) {
@@ -499,26 +502,32 @@ impl MissionSequencer {
         now_s: f64,
         events: &mut Vec<MissionEvent>,
     ) -> VehicleCommand {
-        let last_phase = self.plan.phase_names.len().saturating_sub(1);
         let phase = *self.phase.get_or_insert(0);
-        if self.land_now && phase < last_phase {
-            self.start_phase(last_phase, now_s, events);
-        } else if phase == 0 && last_phase > 0 {
-            if self.transit_offset(autopilot).norm() <= self.plan.arrival_radius_m {
-                self.start_phase(1, now_s, events);
+        match self.plan.kind(phase) {
+            Some(kind) if self.land_now && kind != PhaseKind::Land => {
+                let last_phase = self.plan.phase_names.len().saturating_sub(1);
+                let landing = self.plan.landing_phase().unwrap_or(last_phase);
+                self.start_phase(landing, now_s, events);
             }
-        } else if phase > 0 && phase < last_phase {
-            let duration_s = self
-                .plan
-                .phase_durations_s
-                .get(phase)
-                .copied()
-                .unwrap_or(0.0);
-            if now_s - self.phase_started_s >= duration_s {
-                self.start_phase(phase + 1, now_s, events);
+            Some(PhaseKind::Transit) => {
+                if self.transit_offset(autopilot).norm() <= self.plan.arrival_radius_m {
+                    self.start_phase(phase + 1, now_s, events);
+                }
             }
+            Some(PhaseKind::Track) => {
+                let duration_s = self
+                    .plan
+                    .phase_durations_s
+                    .get(phase)
+                    .copied()
+                    .unwrap_or(0.0);
+                if now_s - self.phase_started_s >= duration_s {
+                    self.start_phase(phase + 1, now_s, events);
+                }
+            }
+            Some(PhaseKind::Land) | None => {}
         }
-        let velocity_ned_m_s = if self.phase == Some(0) && last_phase > 0 {
+        let velocity_ned_m_s = if self.in_phase_of_kind(PhaseKind::Transit) {
             self.transit_velocity(autopilot)
         } else {
             // The landing task steers; until it has spoken, hold.

@@ -15,6 +15,7 @@ use algorithms::vision::render::SplitMix64;
 use nalgebra::Vector3;
 use runtime::camera::{CapturedFrame, MemorySource};
 use runtime::clock::Timestamp;
+use runtime::config::{Mission, PhaseKind};
 use runtime::energy::MissionModel;
 use runtime::link::{LinkConfig, MavlinkLink};
 use runtime::mission::runner::LOCKSTEP_TIMEOUT;
@@ -68,9 +69,9 @@ pub fn simulate(
     // The governor plans for the tracking time actually flown.
     let mut adjusted = model.clone();
     if let Some(tracking_s) = options.tracking_s {
-        let count = adjusted.config.mission.phases.len();
-        for (i, phase) in adjusted.config.mission.phases.iter_mut().enumerate() {
-            if i > 0 && i + 1 < count {
+        let kinds = adjusted.config.mission.phase_kinds();
+        for (phase, kind) in adjusted.config.mission.phases.iter_mut().zip(kinds) {
+            if kind == PhaseKind::Track {
                 phase.duration_s = tracking_s;
             }
         }
@@ -138,10 +139,7 @@ pub fn simulate(
     let mut latency_rng = SplitMix64::new(options.seed ^ 0x006c_6174_656e_6379);
     let mut camera = SimCamera::new(camera_config, options.seed).map_err(setup)?;
     // The hazards stand beside the track the tractor will drive while the CNN watches.
-    let watch_s: f64 = model.config.mission.phases[1..model.config.mission.phases.len() - 1]
-        .iter()
-        .map(|p| p.duration_s)
-        .sum();
+    let watch_s = phases_duration_s(&model.config.mission, |kind| kind == PhaseKind::Track);
     let track = future_track_ne_m(&tractor, watch_s).map_err(setup)?;
     let mut world = World::new(tractor, wind);
     let hazards =
@@ -226,17 +224,7 @@ pub fn simulate(
         plan.command_timeout_s = plan.command_timeout_s.max(REAL_AUTOPILOT_READY_S);
     }
     let max_time_s = options.max_time_s.unwrap_or_else(|| {
-        let phases = &model.config.mission.phases;
-        let count = plan.phase_durations_s.len();
-        let middle_s: f64 = plan
-            .phase_durations_s
-            .iter()
-            .enumerate()
-            .filter(|&(i, _)| i > 0 && i + 1 < count)
-            .map(|(_, s)| s)
-            .sum();
-        let landing_s = phases.last().map_or(0.0, |p| p.duration_s);
-        middle_s + landing_s + TIME_MARGIN_S
+        phases_duration_s(&model.config.mission, |kind| kind != PhaseKind::Transit) + TIME_MARGIN_S
     });
     let bus = scheduler.bus().clone();
     // The camera's frames reach the runtime as a real camera's do: through a frame source.
@@ -322,6 +310,7 @@ pub fn simulate(
     let mut tick = 0u64;
     let mut finished_s = None;
     let phase_count = config.mission.phases.len();
+    let phase_kinds = config.mission.phase_kinds();
     let pace_start = Instant::now();
     let mut current_phase: Option<(usize, String)> = None;
     let ticks_per_report = (1.0 / TICK_S).round().max(1.0) as u64;
@@ -516,11 +505,11 @@ pub fn simulate(
                     .phases
                     .get(*phase)
                     .map(|p| (*phase, p.name.clone()));
-                // The sequencer's last phase is the landing.
-                if *phase + 1 == phase_count {
+                let kind = phase_kinds.get(*phase).copied();
+                if kind == Some(PhaseKind::Land) {
                     landing_started_s = Some(time_s);
                 }
-                if *phase == 1 {
+                if kind == Some(PhaseKind::Track) && tracking_started_s.is_none() {
                     tracking_started_s = Some(time_s);
                     if let Some((from_s, until_s)) = options.faults.camera_freeze {
                         camera.freeze(time_s + from_s, time_s + until_s);
@@ -530,7 +519,7 @@ pub fn simulate(
                     }
                 }
                 // The tractor drives off once the vehicle is with it.
-                world.tractor_moving |= *phase >= 1;
+                world.tractor_moving |= kind != Some(PhaseKind::Transit);
             }
         }
         let status = runner.status();
@@ -690,4 +679,15 @@ pub fn simulate(
         delivered_to_setpoint_ms: (delivered.count > 0)
             .then(|| [delivered.p50_us, delivered.p99_us, delivered.max_us].map(|us| us / 1e3)),
     })
+}
+
+/// The summed duration of the mission's phases whose kind `counts`.
+fn phases_duration_s(mission: &Mission, counts: impl Fn(PhaseKind) -> bool) -> f64 {
+    mission
+        .phases
+        .iter()
+        .zip(mission.phase_kinds())
+        .filter(|&(_, kind)| counts(kind))
+        .map(|(phase, _)| phase.duration_s)
+        .sum()
 }
