@@ -1,5 +1,6 @@
 //! `qosrt check`: validate a config, then summarise it for a person or as JSON.
 
+use crate::output::print_json;
 use runtime::catalog::PluginCatalog;
 use runtime::config::{load_file, ConfigFailure, LoadedConfig, MissionConfig, PhaseKind};
 use runtime::dataflow::{task_graph, TaskGraph};
@@ -57,13 +58,6 @@ pub fn report_failure(failure: &ConfigFailure, json: bool) {
             failure.path.display(),
             failure.diagnostics.len()
         );
-    }
-}
-
-fn print_json(value: &impl Serialize) {
-    match serde_json::to_string_pretty(value) {
-        Ok(text) => println!("{text}"),
-        Err(error) => eprintln!("error: cannot write JSON: {error}"),
     }
 }
 

@@ -51,16 +51,9 @@ pub fn run(images: &[PathBuf], layout: Option<&Path>, json: bool) -> ExitCode {
         .iter()
         .map(|path| detect_file(&mut detectors, path))
         .collect();
-    if json {
-        match serde_json::to_string_pretty(&reports) {
-            Ok(text) => println!("{text}"),
-            Err(error) => eprintln!("error: cannot write JSON: {error}"),
-        }
-    } else {
-        for report in &reports {
-            print!("{}", human(report));
-        }
-    }
+    crate::output::print_result(json, &reports, |reports| {
+        reports.iter().map(human).collect()
+    });
     if reports.iter().any(|r| r.error.is_some()) {
         for report in reports.iter().filter(|r| r.error.is_some()) {
             eprintln!("error: {}", report.error.as_deref().unwrap_or_default());

@@ -8,6 +8,7 @@ mod fly;
 mod frames;
 mod load;
 mod model;
+mod output;
 mod plan;
 mod plot;
 mod profile;

@@ -60,14 +60,7 @@ pub fn run(args: &ModelArgs) -> ExitCode {
     };
     match describe(&profile, args) {
         Ok(report) => {
-            if args.json {
-                match serde_json::to_string_pretty(&report) {
-                    Ok(text) => println!("{text}"),
-                    Err(error) => eprintln!("error: cannot write JSON: {error}"),
-                }
-            } else {
-                print!("{}", human(&report));
-            }
+            crate::output::print_result(args.json, &report, human);
             ExitCode::SUCCESS
         }
         Err(message) => {

@@ -60,14 +60,9 @@ pub fn run(args: &PlanArgs) -> ExitCode {
             return ExitCode::FAILURE;
         }
     }
-    if args.json {
-        match serde_json::to_string_pretty(&report) {
-            Ok(text) => println!("{text}"),
-            Err(error) => eprintln!("error: cannot write JSON: {error}"),
-        }
-    } else {
-        print!("{}", human_report(&report, &model.config, &args.file));
-    }
+    crate::output::print_result(args.json, &report, |report| {
+        human_report(report, &model.config, &args.file)
+    });
     if report.feasible {
         ExitCode::SUCCESS
     } else {

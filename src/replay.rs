@@ -72,14 +72,7 @@ pub fn run(args: &ReplayArgs) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&report).expect("the report serialises")
-        );
-    } else {
-        print!("{}", describe(&report, &args.file));
-    }
+    crate::output::print_result(args.json, &report, |report| describe(report, &args.file));
     if report.identical() {
         ExitCode::SUCCESS
     } else {

@@ -87,14 +87,9 @@ pub fn run(model: &MissionModel, args: &SimArgs) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    if json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&outcome).expect("outcomes serialise")
-        );
-    } else {
-        println!(
-            "{}: {}; {} frames rendered, {} streamed{}",
+    crate::output::print_result(json, &outcome, |outcome| {
+        format!(
+            "{}: {}; {} frames rendered, {} streamed{}\n",
             outcome.vehicle,
             outcome.end,
             outcome.frames_rendered,
@@ -103,8 +98,8 @@ pub fn run(model: &MissionModel, args: &SimArgs) -> ExitCode {
                 .video_latency_ms
                 .map(|[p50, p99]| format!(" (capture to wire {p50:.1} ms median, {p99:.1} ms p99)"))
                 .unwrap_or_default()
-        );
-    }
+        )
+    });
     if outcome.landed_on_pad {
         ExitCode::SUCCESS
     } else {

@@ -98,8 +98,6 @@ pub struct RelativeState {
 pub struct LandingSetpoint {
     pub mode: algorithms::control::landing::LandingMode,
     pub velocity_setpoint_ned_m_s: nalgebra::Vector3<f64>,
-    /// Keep sending the land command (with the setpoints: the pad is moving).
-    pub land_command: bool,
 }
 
 topic!(

@@ -48,14 +48,7 @@ pub fn evaluate_hazards(
         .zip(&results)
         .map(|(&(rate_fps, wind_m_s), outcomes)| HazardRow::of(rate_fps, wind_m_s, outcomes))
         .collect();
-    if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&rows).expect("rows serialise")
-        );
-    } else {
-        print!("{}", hazard_table(&rows, args));
-    }
+    crate::output::print_result(args.json, &rows, |rows| hazard_table(rows, args));
     ExitCode::SUCCESS
 }
 

@@ -150,14 +150,7 @@ pub fn evaluate_paths(model: &MissionModel, registry: &PluginRegistry, args: &Si
         .zip(&results)
         .map(|(&(path, speed), outcomes)| PathRow::of(path, speed, outcomes))
         .collect();
-    if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&rows).expect("rows serialise")
-        );
-    } else {
-        print!("{}", path_table(&rows, args, wall_s));
-    }
+    crate::output::print_result(args.json, &rows, |rows| path_table(rows, args, wall_s));
     ExitCode::SUCCESS
 }
 

@@ -174,13 +174,6 @@ fn report(merged: &Merged, args: &SimArgs) -> ExitCode {
         }
         eprintln!("wrote {}", path.display());
     }
-    if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&rows).expect("rows serialise")
-        );
-    } else {
-        print!("{}", table(&merged.evaluation, &rows));
-    }
+    crate::output::print_result(args.json, &rows, |rows| table(&merged.evaluation, rows));
     ExitCode::SUCCESS
 }

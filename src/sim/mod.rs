@@ -93,14 +93,7 @@ pub fn run(args: &SimArgs) -> ExitCode {
                 return ExitCode::FAILURE;
             }
         };
-        if args.json {
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&outcome).expect("outcomes serialise")
-            );
-        } else {
-            print!("{}", report(&outcome));
-        }
+        crate::output::print_result(args.json, &outcome, report);
         if let Some(svg) = &args.svg {
             // The tracks and battery where asked, the QoS levels and battery beside it.
             let qos_path = qos_svg_path(svg);
@@ -147,18 +140,8 @@ pub fn run(args: &SimArgs) -> ExitCode {
     }
     bar.finish_and_clear();
     let summary = SimSummary::of(&outcomes);
-    if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&serde_json::json!({
-                "summary": summary,
-                "runs": outcomes,
-            }))
-            .expect("outcomes serialise")
-        );
-    } else {
-        print!("{}", summary_report(&summary, args));
-    }
+    let result = serde_json::json!({ "summary": summary, "runs": outcomes });
+    crate::output::print_result(args.json, &result, |_| summary_report(&summary, args));
     if summary.success_rate > 0.0 {
         ExitCode::SUCCESS
     } else {

@@ -12,15 +12,14 @@
 //! position message.
 //!
 //! Outbound: [`VehicleCommand`] becomes SET_POSITION_TARGET_LOCAL_NED, COMMAND_LONG or
-//! LANDING_TARGET ([`command_message`]); [`SetpointSequencer`] turns the landing logic's
-//! [`LandingSetpoint`] into commands.
+//! LANDING_TARGET ([`command_message`]); the mission sequencer turns the landing logic's
+//! [`LandingSetpoint`](crate::topics::LandingSetpoint) into commands.
 //!
 //! PX4's and ArduCopter's mode numbers are the `autopilot_modes` crate's table, which the
 //! simulated autopilot obeys too.
 
 use crate::telemetry::BatteryTelemetry;
-use crate::topics::{LandingSetpoint, VehicleState};
-use algorithms::control::landing::LandingMode;
+use crate::topics::VehicleState;
 use algorithms::estimation::camera_mount::camera_attitude_of_gimbal;
 use algorithms::estimation::pad_height::PadHeightEstimator;
 use algorithms::estimation::projection::Attitude;
@@ -696,39 +695,6 @@ pub fn companion_heartbeat() -> MavMessage {
         system_status: MavState::MAV_STATE_ACTIVE,
         mavlink_version: 3,
     })
-}
-
-/// Turns the landing logic's setpoints into commands: the velocity setpoint every time (PX4
-/// leaves OFFBOARD when setpoints stop), plus one Land command the first time the landing
-/// logic asks for it (`land_command`, from FinalLanding on) or reports Landed. Repeating Land
-/// would re-trigger the autopilot's land sequence and flood it with COMMAND_ACKs.
-#[derive(Debug, Clone, Default)]
-pub struct SetpointSequencer {
-    land_sent: bool,
-}
-
-impl SetpointSequencer {
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    pub fn commands_for(&mut self, setpoint: &LandingSetpoint) -> Vec<VehicleCommand> {
-        let mut commands = vec![VehicleCommand::VelocityNed {
-            velocity_ned_m_s: setpoint.velocity_setpoint_ned_m_s,
-            yaw_rad: None,
-        }];
-        let wants_land = setpoint.land_command || setpoint.mode == LandingMode::Landed;
-        if wants_land && !self.land_sent {
-            commands.push(VehicleCommand::Land);
-            self.land_sent = true;
-        }
-        commands
-    }
-
-    /// Forget that Land was sent (a new landing attempt).
-    pub fn reset(&mut self) {
-        self.land_sent = false;
-    }
 }
 
 #[cfg(test)]

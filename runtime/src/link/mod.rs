@@ -15,8 +15,7 @@ pub use link::{
     GIMBAL_COMPONENT_ID,
 };
 pub use mapping::{
-    AckResult, AutopilotKind, AutopilotMode, AutopilotStatus, CommandAck, SetpointSequencer,
-    VehicleCommand,
+    AckResult, AutopilotKind, AutopilotMode, AutopilotStatus, CommandAck, VehicleCommand,
 };
 pub use timesync::{ClockSync, ClockSyncStats};
 

@@ -423,7 +423,6 @@ impl Task for GuidanceTask {
                     LandingSetpoint {
                         mode: out.mode,
                         velocity_setpoint_ned_m_s: out.velocity_setpoint_ned_m_s,
-                        land_command: out.land_command,
                     },
                 );
                 Ok(())
@@ -438,7 +437,6 @@ impl Task for GuidanceTask {
                     LandingSetpoint {
                         mode: hover.mode,
                         velocity_setpoint_ned_m_s: hover.velocity_setpoint_ned_m_s,
-                        land_command: hover.land_command,
                     },
                 );
                 Ok(())

@@ -535,23 +535,3 @@ fn commands_encode_as_px4_expects() {
         Some(22)
     );
 }
-
-#[test]
-fn setpoints_always_land_once() {
-    let mut sequencer = SetpointSequencer::new();
-    let setpoint = |mode, land_command| LandingSetpoint {
-        mode,
-        velocity_setpoint_ned_m_s: Vector3::new(0.5, 0.0, 0.3),
-        land_command,
-    };
-    let descend = sequencer.commands_for(&setpoint(LandingMode::Descend, false));
-    assert_eq!(descend.len(), 1);
-    assert!(descend[0].is_offboard_setpoint());
-    let final_landing = sequencer.commands_for(&setpoint(LandingMode::FinalLanding, true));
-    assert_eq!(final_landing[1], VehicleCommand::Land);
-    let again = sequencer.commands_for(&setpoint(LandingMode::Landed, true));
-    assert_eq!(again.len(), 1);
-    let mut fresh = SetpointSequencer::new();
-    let landed = fresh.commands_for(&setpoint(LandingMode::Landed, false));
-    assert_eq!(landed.last(), Some(&VehicleCommand::Land));
-}

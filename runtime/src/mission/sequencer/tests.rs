@@ -85,7 +85,6 @@ fn landing(mode: LandingMode, down_m_s: f64) -> LandingSetpoint {
     LandingSetpoint {
         mode,
         velocity_setpoint_ned_m_s: Vector3::new(1.5, 0.0, down_m_s),
-        land_command: false,
     }
 }
 
