@@ -169,6 +169,12 @@ impl PluginRegistry {
         self.plugins.iter().map(|plugin| plugin.info.name)
     }
 
+    /// Whether `task`'s plugin is registered and reads `topic` (its declared inputs say).
+    pub fn reads(&self, task: &TaskConfig, topic: &str) -> bool {
+        self.info(&task.plugin)
+            .is_some_and(|info| info.inputs.iter().any(|port| port.topic == topic))
+    }
+
     pub fn info(&self, name: &str) -> Option<&PluginInfo> {
         self.find(name).map(|plugin| &plugin.info)
     }

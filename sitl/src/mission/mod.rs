@@ -28,7 +28,8 @@ use runtime::record::{
 use runtime::registry::PluginRegistry;
 use runtime::scheduler::{Pinning, RealTimeOptions, SchedulerBuilder, TaskScheduler};
 use runtime::topics::{
-    CameraFrame, DepthFrame, HazardReport, RelativeState, DEPTH_FRAME, HAZARDS, RELATIVE_STATE,
+    CameraFrame, DepthFrame, HazardReport, RelativeState, CAMERA_FRAME, DEPTH_FRAME, HAZARDS,
+    RELATIVE_STATE,
 };
 use sim::autopilot::MavlinkAutopilot;
 use sim::autopilot::StreamRates;
@@ -271,7 +272,7 @@ pub fn simulate(
     let camera_consumers: Vec<String> = config
         .tasks
         .iter()
-        .filter(|t| CAMERA_PLUGINS.contains(&t.plugin.as_str()) && registry.contains(&t.plugin))
+        .filter(|t| registry.reads(t, CAMERA_FRAME.name()))
         .map(|t| t.name.clone())
         .collect();
     // The stereo camera flies only for a task that reads depth: the missions without one are
@@ -279,7 +280,7 @@ pub fn simulate(
     let reads_depth = config
         .tasks
         .iter()
-        .any(|t| DEPTH_PLUGINS.contains(&t.plugin.as_str()) && registry.contains(&t.plugin));
+        .any(|t| registry.reads(t, DEPTH_FRAME.name()));
     let mut stereo = if reads_depth {
         let camera = SimStereoCamera::new(options.stereo, options.seed).map_err(setup)?;
         let publisher = bus.publisher::<DepthFrame>(DEPTH_FRAME).map_err(setup)?;

@@ -98,12 +98,6 @@ pub(super) fn mission_plan(
     plan
 }
 
-/// Plugins that read the camera topic.
-pub(super) const CAMERA_PLUGINS: [&str; 3] = ["landing_marker", "hazard_cnn", "hybrid_tracking"];
-
-/// Plugins that read the depth topic: the stereo camera flies only for them.
-pub(super) const DEPTH_PLUGINS: [&str; 1] = ["hybrid_tracking"];
-
 /// A relative state counts towards the localisation error when it is at most this old …
 pub(super) const LOCALISATION_MAX_AGE_S: f64 = 0.1;
 /// … and its last vision fix at most this old (the tracker has the target, not a memory of it).
