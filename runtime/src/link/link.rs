@@ -130,6 +130,32 @@ pub struct LinkStats {
     /// Offboard setpoints held back by the failsafe.
     pub suppressed_setpoints: u64,
     pub commands_denied: u64,
+    /// Sends and receives the transport refused (a closed TCP link refuses every one).
+    pub send_failures: u64,
+    pub receive_failures: u64,
+}
+
+/// A send or receive path that may fail for a while (the autopilot gone, its TCP link closed):
+/// warned of once when it starts failing and once when it works again, not on every poll.
+#[derive(Debug, Default)]
+struct Outage {
+    failing: bool,
+}
+
+impl Outage {
+    fn failed(&mut self, what: &str, error: &dyn std::fmt::Display) {
+        if !self.failing {
+            tracing::warn!(%error, "MAVLink {what} failed; not repeated until it works again");
+        }
+        self.failing = true;
+    }
+
+    fn worked(&mut self, what: &str) {
+        if self.failing {
+            tracing::info!("MAVLink {what} works again");
+        }
+        self.failing = false;
+    }
 }
 
 /// What one poll brought.
@@ -168,6 +194,8 @@ pub struct MavlinkLink {
     last_heartbeat_s: Option<f64>,
     last_position_s: Option<f64>,
     last_sent_heartbeat_s: Option<f64>,
+    send_outage: Outage,
+    receive_outage: Outage,
     status: LinkStatus,
     recovery_pending: bool,
     sequence: u8,
@@ -246,6 +274,8 @@ impl MavlinkLink {
             last_heartbeat_s: None,
             last_position_s: None,
             last_sent_heartbeat_s: None,
+            send_outage: Outage::default(),
+            receive_outage: Outage::default(),
             status: LinkStatus::Connecting,
             recovery_pending: false,
             sequence: 0,
@@ -300,11 +330,13 @@ impl MavlinkLink {
         for _ in 0..MAX_DATAGRAMS_PER_POLL {
             match self.transport.receive(None) {
                 Ok(Some(incoming)) => {
+                    self.receive_outage.worked("receive");
                     self.process(incoming, &mut update, None);
                 }
                 Ok(None) => break,
                 Err(error) => {
-                    tracing::warn!(%error, "MAVLink receive failed");
+                    self.stats.receive_failures += 1;
+                    self.receive_outage.failed("receive", &error);
                     break;
                 }
             }
@@ -319,11 +351,13 @@ impl MavlinkLink {
                 }
                 match self.transport.receive(Some(remaining)) {
                     Ok(Some(incoming)) => {
+                        self.receive_outage.worked("receive");
                         self.process(incoming, &mut update, None);
                     }
                     Ok(None) => {}
                     Err(error) => {
-                        tracing::warn!(%error, "MAVLink receive failed");
+                        self.stats.receive_failures += 1;
+                        self.receive_outage.failed("receive", &error);
                         break;
                     }
                 }
@@ -345,13 +379,7 @@ impl MavlinkLink {
             target_system,
             target_component: self.config.target_component_id,
         });
-        match self.send_message(&request) {
-            Ok(_) => Some(ts1),
-            Err(error) => {
-                tracing::warn!(%error, "TIMESYNC request failed");
-                None
-            }
-        }
+        self.send_message(&request).ok().map(|_| ts1)
     }
 
     /// `time_s` on the runtime's clock in microseconds on the autopilot's, once known.
@@ -547,9 +575,8 @@ impl MavlinkLink {
                             target_system: header.system_id as u8,
                             target_component: header.component_id,
                         });
-                        if let Err(error) = self.send_message(&reply) {
-                            tracing::warn!(%error, "TIMESYNC reply failed");
-                        }
+                        // A failure is counted and warned of by the sender.
+                        let _ = self.send_message(&reply);
                     }
                 }
                 continue;
@@ -598,10 +625,10 @@ impl MavlinkLink {
         if !due {
             return;
         }
-        match self.send_message(&companion_heartbeat()) {
-            Ok(Sent::Sent) => self.last_sent_heartbeat_s = Some(now_s),
-            Ok(_) => {}
-            Err(error) => tracing::warn!(%error, "companion HEARTBEAT failed"),
+        // Sent or refused, the next try is a period on (a failure is counted and warned of
+        // by the sender); with no peer yet, it goes as soon as there is one.
+        if !matches!(self.send_message(&companion_heartbeat()), Ok(Sent::NoPeer)) {
+            self.last_sent_heartbeat_s = Some(now_s);
         }
     }
 
@@ -648,7 +675,18 @@ impl MavlinkLink {
         if let Some(capture) = &mut self.capture {
             capture.sent.push((header, message.clone()));
         }
-        if self.transport.send(header, message)? {
+        let sent = match self.transport.send(header, message) {
+            Ok(sent) => {
+                self.send_outage.worked("send");
+                sent
+            }
+            Err(error) => {
+                self.stats.send_failures += 1;
+                self.send_outage.failed("send", &error);
+                return Err(error.into());
+            }
+        };
+        if sent {
             self.stats.messages_sent += 1;
             Ok(Sent::Sent)
         } else {

@@ -345,3 +345,30 @@ fn with_a_signing_key_unsigned_messages_are_refused_and_what_is_sent_is_signed()
     assert_eq!(verify(key), 1);
     assert_eq!(verify([9u8; 32]), 0);
 }
+
+/// An autopilot whose TCP link closes (a SITL that stopped) refuses every send and receive:
+/// the link counts them, tries its heartbeat (and TIMESYNC) once a period rather than on
+/// every poll, and goes on polling.
+#[test]
+fn a_closed_tcp_link_is_counted_and_retried_at_the_heartbeat_period() {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let mut link =
+        MavlinkLink::connect(&format!("tcpout:127.0.0.1:{port}"), LinkConfig::default()).unwrap();
+    let (peer, _) = listener.accept().unwrap();
+    drop(peer);
+    drop(listener);
+    // Two seconds of the runner's 1 kHz polls.
+    for step in 0..2000 {
+        link.poll(f64::from(step) * 1e-3);
+    }
+    let stats = link.stats();
+    assert!(stats.receive_failures > 0, "{stats:?}");
+    // A heartbeat and a TIMESYNC request at 0, 1 and 2 s at most (one of the first may still
+    // have gone out before the peer's reset came back).
+    assert!(
+        (1..=6).contains(&stats.send_failures),
+        "send failures {}: retried on every poll?",
+        stats.send_failures
+    );
+}
