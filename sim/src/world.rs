@@ -100,6 +100,29 @@ impl World {
         self.tractor.pad()
     }
 
+    /// One tick of physics, `tick_s` from `time_s` in steps of `dt_s`: the one sub-step loop
+    /// of every world that moves the body itself. `between(t_s, body)` runs before each step
+    /// but the first: a served world acts on the commands that arrived meanwhile, as a real
+    /// autopilot does, rather than on the next tick.
+    pub fn step_tick<B: Body, E: From<WorldError>>(
+        &mut self,
+        time_s: f64,
+        tick_s: f64,
+        dt_s: f64,
+        body: &mut B,
+        mut between: impl FnMut(f64, &mut B) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let steps = (tick_s / dt_s).round() as usize;
+        for step in 0..steps {
+            let t_s = time_s + step as f64 * dt_s;
+            if step > 0 {
+                between(t_s, body)?;
+            }
+            self.step(t_s, dt_s, body)?;
+        }
+        Ok(())
+    }
+
     /// One physics step from `time_s` to `time_s + dt_s`.
     pub fn step(&mut self, time_s: f64, dt_s: f64, body: &mut impl Body) -> Result<(), WorldError> {
         if self.tractor_moving {

@@ -456,18 +456,17 @@ pub fn serve(
             Flyer::Simulated {
                 vehicle, autopilot, ..
             } => {
-                for substep in 0..substeps {
-                    let t_s = time_s + substep as f64 * PHYSICS_DT_S;
-                    // A real autopilot acts on a setpoint as it arrives, not on the next 50 Hz
-                    // tick.
-                    if substep > 0 {
+                // A real autopilot acts on a setpoint as it arrives, not on the next 50 Hz tick.
+                world.step_tick(
+                    time_s,
+                    TICK_S,
+                    PHYSICS_DT_S,
+                    vehicle.as_mut(),
+                    |t_s, vehicle| {
                         pace_to(start, t_s);
-                        apply_commands(vehicle, autopilot, t_s)?;
-                    }
-                    world
-                        .step(t_s, PHYSICS_DT_S, vehicle.as_mut())
-                        .map_err(setup)?;
-                }
+                        apply_commands(vehicle, autopilot, t_s)
+                    },
+                )?
             }
             // SIH moves its own vehicle: the world moves only the tractor.
             Flyer::Px4Sih { .. } => {
@@ -679,6 +678,12 @@ fn video_stats(_video: &Video) -> (u64, Option<[f64; 2]>) {
 mod tests;
 
 /// A setup failure, keeping its cause.
+impl From<sim::world::WorldError> for ServeError {
+    fn from(error: sim::world::WorldError) -> Self {
+        setup(error)
+    }
+}
+
 fn setup(error: impl Into<crate::mission::Cause>) -> ServeError {
     ServeError::Setup(error.into())
 }

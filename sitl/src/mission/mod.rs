@@ -537,13 +537,9 @@ pub fn simulate(
         // Physics.
         match &mut flyer {
             Flyer::Builtin { vehicle, .. } => {
-                let substeps = (TICK_S / PHYSICS_DT_S).round() as usize;
-                for substep in 0..substeps {
-                    let t_s = time_s + substep as f64 * PHYSICS_DT_S;
-                    world
-                        .step(t_s, PHYSICS_DT_S, vehicle.as_mut())
-                        .map_err(setup)?;
-                }
+                world.step_tick(time_s, TICK_S, PHYSICS_DT_S, vehicle.as_mut(), |_, _| {
+                    Ok::<(), SimError>(())
+                })?
             }
             Flyer::Real(real) => real.step_until(&mut world, time_s + TICK_S, TICK_S)?,
         }

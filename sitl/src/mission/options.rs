@@ -163,6 +163,12 @@ pub const TIME_MARGIN_S: f64 = 120.0;
 pub(super) const MEETING_POINT_NORTH_M: f64 = 15.0;
 
 /// A setup failure, keeping its cause.
+impl From<sim::world::WorldError> for SimError {
+    fn from(error: sim::world::WorldError) -> Self {
+        setup(error)
+    }
+}
+
 pub(crate) fn setup(error: impl Into<Cause>) -> SimError {
     SimError::Setup(error.into())
 }
