@@ -26,6 +26,9 @@ const LANDING_TIMEOUT_S: f64 = 90.0;
 /// The program ended but the vehicle did not land and disarm in time.
 const EXIT_LANDING_TIMEOUT: u8 = 4;
 
+/// The flight's runner: the mission loop on the real-time scheduler.
+type Runner = MissionRunner<runtime::scheduler::RealTimeScheduler>;
+
 /// What `qosrt run --mavlink` was asked.
 pub struct FlyArgs {
     pub file: PathBuf,
@@ -154,6 +157,20 @@ pub enum KeyFormatError {
 }
 
 fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
+    let mut runner = start_runner(args)?;
+    let started = Instant::now();
+    let timed_out = fly_until_done(&mut runner, args, started)?;
+    report(&mut runner, args, started)?;
+    Ok(if timed_out {
+        ExitCode::from(EXIT_LANDING_TIMEOUT)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+/// The flight's runner: the config and its models loaded, the link and the camera open, the
+/// tasks on the real-time scheduler, the recorder started when asked.
+fn start_runner(args: &FlyArgs) -> Result<Runner, Failure> {
     if let Some(duration_s) = args.duration_s {
         if !(duration_s.is_finite() && duration_s > 0.0) {
             return Err(format!(
@@ -232,6 +249,12 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
         }
         runner.record(recorder)?;
     }
+    Ok(runner)
+}
+
+/// Steps the runner until the mission ends, or lands the vehicle when the time is up or on
+/// Ctrl-C; whether the landing then timed out.
+fn fly_until_done(runner: &mut Runner, args: &FlyArgs, started: Instant) -> Result<bool, Failure> {
     let interrupted = Arc::new(AtomicBool::new(false));
     {
         let interrupted = interrupted.clone();
@@ -249,7 +272,6 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
     );
     // The loop runs on the scheduler's clock, the one the tasks stamp their messages with.
     let clock_start_s = runner.scheduler().now().as_secs_f64();
-    let started = Instant::now();
     // A frame or a setpoint wakes the loop: taken and sent at once, not at the next tick.
     runner.wake_on_input(std::thread::current())?;
     let mut stop_asked_s: Option<f64> = None;
@@ -289,6 +311,11 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
         let next = started + Duration::from_secs_f64(run_s) + LOOP_PERIOD;
         std::thread::park_timeout(next.saturating_duration_since(Instant::now()));
     }
+    Ok(timed_out)
+}
+
+/// Stops the runner, closes the recording and prints the flight's report.
+fn report(runner: &mut Runner, args: &FlyArgs, started: Instant) -> Result<(), Failure> {
     runner.stop();
     if let Some(summary) = runner.finish_recording().transpose()? {
         if let Some(path) = &summary.file {
@@ -336,14 +363,9 @@ fn fly(args: &FlyArgs) -> Result<ExitCode, Failure> {
             summary(log, &stats, &runner.link().clock_sync_stats(), wall_s)
         );
     }
-    Ok(if timed_out {
-        ExitCode::from(EXIT_LANDING_TIMEOUT)
-    } else {
-        ExitCode::SUCCESS
-    })
+    Ok(())
 }
 
-/// `[link] signing_key_file`: 32 bytes, raw or as 64 hex digits.
 fn signing_key(loaded: &LoadedConfig) -> Result<Option<[u8; 32]>, Failure> {
     let Some(file) = loaded
         .config
