@@ -172,7 +172,7 @@ impl PluginRegistry {
     /// Whether `task`'s plugin is registered and reads `topic` (its declared inputs say).
     pub fn reads(&self, task: &TaskConfig, topic: &str) -> bool {
         self.info(&task.plugin)
-            .is_some_and(|info| info.inputs.iter().any(|port| port.topic == topic))
+            .is_some_and(|info| info.reads(topic))
     }
 
     pub fn info(&self, name: &str) -> Option<&PluginInfo> {

@@ -25,6 +25,16 @@ pub struct PluginInfo {
 }
 
 impl PluginInfo {
+    /// Whether the plugin reads `topic` (one of its declared inputs).
+    pub fn reads(&self, topic: &str) -> bool {
+        self.inputs.iter().any(|port| port.topic == topic)
+    }
+
+    /// Whether the plugin publishes `topic` (one of its declared outputs).
+    pub fn writes(&self, topic: &str) -> bool {
+        self.outputs.iter().any(|port| port.topic == topic)
+    }
+
     /// A user's plugin registered by name alone: it may run anywhere, with either knob, and
     /// declares no ports (set `inputs` and `outputs` to give it some).
     pub const fn user(name: &'static str) -> Self {
@@ -213,7 +223,7 @@ impl PluginCatalog {
     pub fn producers_of<'a>(&'a self, topic: &'a str) -> impl Iterator<Item = &'static str> + 'a {
         self.plugins
             .iter()
-            .filter(move |plugin| plugin.outputs.iter().any(|port| port.topic == topic))
+            .filter(move |plugin| plugin.writes(topic))
             .map(|plugin| plugin.name)
     }
 }

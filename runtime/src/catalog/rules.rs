@@ -94,7 +94,7 @@ fn check_trigger_topic(
         // An unknown plugin is reported as such.
         return;
     };
-    if plugin.inputs.iter().any(|port| port.topic == topic) {
+    if plugin.reads(topic) {
         return;
     }
     let inputs: Vec<&str> = plugin.inputs.iter().map(|port| port.topic).collect();

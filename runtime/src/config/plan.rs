@@ -56,13 +56,13 @@ impl MissionPlan {
         plan.cruise_altitude_m = config
             .plugin_number("landing_guidance", "initial_altitude_m")
             .unwrap_or(algorithms::control::landing::LandingConfig::default().initial_height_m);
-        let last_phase = plan
+        let landing_phase = plan
             .landing_phase()
             .and_then(|index| phases.get(index))
             .map(|p| p.name.as_str());
         let steered = config.tasks.iter().any(|task| {
             task.plugin == "landing_guidance"
-                && last_phase.is_some_and(|last| task.phases.iter().any(|p| p == last))
+                && landing_phase.is_some_and(|landing| task.runs_in(landing))
         });
         let landing_target = config.link.as_ref().is_some_and(|l| l.landing_target);
         plan.landing = match (steered, landing_target) {

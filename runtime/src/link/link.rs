@@ -328,17 +328,11 @@ impl MavlinkLink {
         let asked = self.request_autopilot_time(now_s);
         let mut update = self.empty_update();
         for _ in 0..MAX_DATAGRAMS_PER_POLL {
-            match self.transport.receive(None) {
+            match self.receive(None) {
                 Ok(Some(incoming)) => {
-                    self.receive_outage.worked("receive");
                     self.process(incoming, &mut update, None);
                 }
-                Ok(None) => break,
-                Err(error) => {
-                    self.stats.receive_failures += 1;
-                    self.receive_outage.failed("receive", &error);
-                    break;
-                }
+                Ok(None) | Err(()) => break,
             }
         }
         // A recording holds what the wait took in the step's own batches, drained above.
@@ -349,17 +343,12 @@ impl MavlinkLink {
                 if remaining.is_zero() {
                     break;
                 }
-                match self.transport.receive(Some(remaining)) {
+                match self.receive(Some(remaining)) {
                     Ok(Some(incoming)) => {
-                        self.receive_outage.worked("receive");
                         self.process(incoming, &mut update, None);
                     }
                     Ok(None) => {}
-                    Err(error) => {
-                        self.stats.receive_failures += 1;
-                        self.receive_outage.failed("receive", &error);
-                        break;
-                    }
+                    Err(()) => break,
                 }
             }
         }
@@ -663,6 +652,24 @@ impl MavlinkLink {
             }
             (_, None) => LinkStatus::Connected,
         };
+    }
+
+    /// What the transport has (waiting at most `wait`); a failure is counted and warned of
+    /// here, once per outage.
+    fn receive(&mut self, wait: Option<Duration>) -> Result<Option<Incoming>, ()> {
+        match self.transport.receive(wait) {
+            Ok(incoming) => {
+                if incoming.is_some() {
+                    self.receive_outage.worked("receive");
+                }
+                Ok(incoming)
+            }
+            Err(error) => {
+                self.stats.receive_failures += 1;
+                self.receive_outage.failed("receive", &error);
+                Err(())
+            }
+        }
     }
 
     fn send_message(&mut self, message: &MavMessage) -> Result<Sent, LinkError> {
