@@ -3,7 +3,8 @@
 
 use crate::sim::args::{SimArgs, EXIT_NOT_LANDED};
 use runtime::energy::MissionModel;
-use sitl::mission::WindKind;
+use sim::realism::Realism;
+use sim::world::WorldOptions;
 use sitl::serve::{serve, ServeOptions, ServeVehicle, ServedTouchdown, Truth};
 use std::net::SocketAddr;
 use std::process::ExitCode;
@@ -19,16 +20,12 @@ pub fn run(model: &MissionModel, args: &SimArgs) -> ExitCode {
         return ExitCode::from(crate::check::EXIT_INVALID_CONFIG);
     }
     let options = ServeOptions {
-        path: args.path,
-        wind_speed_m_s: args.wind_m_s,
-        wind_kind: if args.dryden {
-            WindKind::Dryden
-        } else {
-            WindKind::Gusts
+        // The served world's driver is scripted and its pad still: with a real autopilot the
+        // estimator's errors are its own.
+        world: WorldOptions {
+            realism: Realism::ideal(),
+            ..args.world(args.seed)
         },
-        platform_speed_m_s: args.platform_speed_m_s,
-        seed: args.seed,
-        meeting_point_ne_m: args.meeting_point_ne_m,
         vehicle: args.vehicle,
         mavlink_addr: SocketAddr::from(([127, 0, 0, 1], args.mavlink_port)),
         video_port: (!args.no_video).then_some(args.video_port),
@@ -42,7 +39,7 @@ pub fn run(model: &MissionModel, args: &SimArgs) -> ExitCode {
             return ExitCode::FAILURE;
         }
     }
-    let [north_m, east_m] = options.meeting_point_ne_m;
+    let [north_m, east_m] = options.world.meeting_point_ne_m;
     let mavlink = match options.vehicle {
         ServeVehicle::Simulated => format!("MAVLink to udp:127.0.0.1:{}", args.mavlink_port),
         ServeVehicle::Px4Sih { instance } => format!(

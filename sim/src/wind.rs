@@ -65,6 +65,33 @@ pub enum WindConfig {
     },
 }
 
+/// Which wind model blows at a given mean speed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum WindKind {
+    /// The seed's gust model.
+    #[default]
+    Gusts,
+    /// Dryden turbulence around the mean wind.
+    Dryden,
+}
+
+impl WindConfig {
+    /// The wind of `kind` at `speed_m_s`, from the east as the seed's; calm at 0.
+    pub fn from_east(speed_m_s: f64, kind: WindKind) -> Self {
+        match (speed_m_s > 0.0, kind) {
+            (false, _) => Self::Calm,
+            (true, WindKind::Gusts) => Self::Gusts {
+                speed_m_s,
+                direction_from_rad: std::f64::consts::FRAC_PI_2,
+            },
+            (true, WindKind::Dryden) => Self::Dryden {
+                speed_m_s,
+                direction_from_rad: std::f64::consts::FRAC_PI_2,
+            },
+        }
+    }
+}
+
 /// A wind configuration or a query that cannot be used.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum WindError {

@@ -6,9 +6,10 @@
 use nalgebra::Vector3;
 
 use crate::quadrotor::{Quadrotor, QuadrotorError};
-use crate::tractor::{PadState, Tractor, TractorError};
+use crate::realism::{DriverBehaviour, PadMotion, Realism, RealismError};
+use crate::tractor::{PadState, PathKind, Tractor, TractorError, TractorParams};
 use crate::vehicle::{Multirotor, VehicleError};
-use crate::wind::Wind;
+use crate::wind::{Wind, WindConfig, WindError, WindKind};
 
 /// A body the world moves.
 pub trait Body {
@@ -34,6 +35,45 @@ pub enum WorldError {
     Vehicle(#[from] VehicleError),
     #[error(transparent)]
     Quadrotor(#[from] QuadrotorError),
+    #[error(transparent)]
+    Wind(#[from] WindError),
+    #[error(transparent)]
+    Realism(#[from] RealismError),
+}
+
+/// What world to build: the same for every way it runs (the in-process harness, the served
+/// world, the real autopilots' physics backend).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WorldOptions {
+    /// The tractor's path.
+    pub path: PathKind,
+    /// The mean wind, from the east.
+    pub wind_speed_m_s: f64,
+    pub wind_kind: WindKind,
+    /// The tractor's speed on its path.
+    pub platform_speed_m_s: f64,
+    /// Where the tractor waits for the vehicle.
+    pub meeting_point_ne_m: [f64; 2],
+    /// Every random draw of the world (gusts, driver, field, camera, hazards) follows from it.
+    pub seed: u64,
+    /// How far the world is from the ideal one: the driver, the pad's motion, and what the
+    /// runtime sees of it (camera, estimator, telemetry).
+    pub realism: Realism,
+}
+
+impl Default for WorldOptions {
+    /// A straight path in calm air, the tractor at 1.5 m/s waiting 15 m north, realistic.
+    fn default() -> Self {
+        Self {
+            path: PathKind::Straight,
+            wind_speed_m_s: 0.0,
+            wind_kind: WindKind::Gusts,
+            platform_speed_m_s: 1.5,
+            meeting_point_ne_m: [15.0, 0.0],
+            seed: 0,
+            realism: Realism::default(),
+        }
+    }
 }
 
 impl Body for Multirotor {
@@ -94,6 +134,31 @@ impl World {
             wind,
             tractor_moving: false,
         }
+    }
+
+    /// The tractor parked at the meeting point with its pad `pad_height_m` up (0: on the
+    /// ground), its driver and field as the realism says, and the wind.
+    pub fn build(options: &WorldOptions, pad_height_m: f64) -> Result<Self, WorldError> {
+        options.realism.validate()?;
+        let params = TractorParams {
+            speed_m_s: options.platform_speed_m_s,
+            pad_height_m,
+            ..TractorParams::default()
+        };
+        let mut tractor =
+            Tractor::new(options.path, params, options.meeting_point_ne_m, 0.0)?.parked();
+        let realism = &options.realism;
+        if realism.driver != DriverBehaviour::SCRIPTED {
+            tractor = tractor.with_driver(realism.driver, options.seed);
+        }
+        if realism.pad != PadMotion::STILL {
+            tractor = tractor.with_rough_field(realism.pad, options.seed);
+        }
+        let wind = Wind::new(
+            WindConfig::from_east(options.wind_speed_m_s, options.wind_kind),
+            options.seed ^ 0x5749_4e44,
+        )?;
+        Ok(Self::new(tractor, wind))
     }
 
     pub fn pad(&self) -> PadState {

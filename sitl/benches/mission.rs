@@ -10,6 +10,7 @@ use runtime::catalog::PluginCatalog;
 use runtime::config::load_file;
 use runtime::energy::load_mission_model;
 use runtime::plugins::builtin_registry;
+use sim::world::WorldOptions;
 use sitl::mission::{simulate, SimOptions};
 use std::path::Path;
 use std::time::Instant;
@@ -28,7 +29,10 @@ fn main() {
         let mut simulated_s = 0.0;
         for repeat in 0..REPEATS {
             let options = SimOptions {
-                seed: repeat as u64,
+                world: WorldOptions {
+                    seed: repeat as u64,
+                    ..WorldOptions::default()
+                },
                 tracking_s: Some(60.0),
                 render_threads,
                 ..SimOptions::default()

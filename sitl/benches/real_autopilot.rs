@@ -11,6 +11,7 @@ use runtime::config::load_file;
 use runtime::energy::load_mission_model;
 use runtime::plugins::builtin_registry;
 use sim::tractor::PathKind;
+use sim::world::WorldOptions;
 use sitl::mission::{simulate, AutopilotKind, RealAutopilot, SimOptions};
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -47,9 +48,12 @@ fn main() {
         let mut simulated_s = 0.0;
         for seed in 0..REPEATS {
             let options = SimOptions {
-                seed,
-                path: PathKind::Turn180,
-                wind_speed_m_s: 12.0,
+                world: WorldOptions {
+                    seed,
+                    path: PathKind::Turn180,
+                    wind_speed_m_s: 12.0,
+                    ..WorldOptions::default()
+                },
                 tracking_s: Some(15.0),
                 autopilot: autopilot.clone(),
                 ..SimOptions::default()

@@ -10,6 +10,7 @@ use runtime::config::load_file;
 use runtime::energy::load_mission_model;
 use runtime::plugins::builtin_registry;
 use runtime::record::{ConfigFile, RecorderOptions};
+use sim::world::WorldOptions;
 use sitl::mission::{simulate, SimOptions, SimRecording};
 use std::path::Path;
 
@@ -30,7 +31,10 @@ fn main() {
         for (recorded, results) in runs.iter_mut().enumerate() {
             let file = dir.join(format!("m{repeat}.mcap"));
             let options = SimOptions {
-                seed: repeat,
+                world: WorldOptions {
+                    seed: repeat,
+                    ..WorldOptions::default()
+                },
                 tracking_s: Some(30.0),
                 record: (recorded == 1).then(|| SimRecording {
                     recorder: RecorderOptions {

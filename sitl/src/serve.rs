@@ -37,18 +37,16 @@ use runtime::energy::MissionModel;
 use sim::autopilot::MavlinkAutopilot;
 use sim::camera::{SimCamera, VehiclePose};
 use sim::power::{RotorPowerModel, SimBattery, SimPack};
+use sim::realism::Realism;
 use sim::scene::{SimScene, TractorBody};
-use sim::tractor::{PadState, PathKind, Tractor, TractorParams};
-use sim::vehicle::{Multirotor, VehicleParams};
-use sim::wind::Wind;
-
+use sim::tractor::{PadState, TractorParams};
 use sim::vehicle::Touchdown;
-use sim::world::World;
+use sim::vehicle::{Multirotor, VehicleParams};
+use sim::world::{World, WorldOptions};
 
 use crate::mission::{
-    camera_config, camera_gimbal, flight_power_w, hover_power_w, pad_pose, wind_config,
-    AutopilotKind, CameraGimbal, GimballedVehicle, RealAutopilot, RealVehicle, SimError, WindKind,
-    PHYSICS_DT_S, TICK_S,
+    camera_config, camera_gimbal, flight_power_w, hover_power_w, pad_pose, AutopilotKind,
+    CameraGimbal, GimballedVehicle, RealAutopilot, RealVehicle, SimError, PHYSICS_DT_S, TICK_S,
 };
 use crate::px4_sih::SihListener;
 
@@ -146,12 +144,8 @@ impl std::str::FromStr for ServeVehicle {
 /// What the world serves.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ServeOptions {
-    pub path: PathKind,
-    pub wind_speed_m_s: f64,
-    pub wind_kind: WindKind,
-    pub platform_speed_m_s: f64,
-    pub seed: u64,
-    pub meeting_point_ne_m: [f64; 2],
+    /// The world to serve.
+    pub world: WorldOptions,
     pub vehicle: ServeVehicle,
     /// The runtime's MAVLink address (the simulated autopilot sends there).
     pub mavlink_addr: SocketAddr,
@@ -164,12 +158,12 @@ pub struct ServeOptions {
 impl Default for ServeOptions {
     fn default() -> Self {
         Self {
-            path: PathKind::Straight,
-            wind_speed_m_s: 0.0,
-            wind_kind: WindKind::Gusts,
-            platform_speed_m_s: 1.5,
-            seed: 0,
-            meeting_point_ne_m: [15.0, 0.0],
+            // A scripted driver and a still pad: with a real autopilot the estimator's errors
+            // are its own.
+            world: WorldOptions {
+                realism: Realism::ideal(),
+                ..WorldOptions::default()
+            },
             vehicle: ServeVehicle::Simulated,
             mavlink_addr: SocketAddr::from(([127, 0, 0, 1], 14540)),
             video_port: Some(5600),
@@ -264,30 +258,13 @@ pub fn serve(
     let real = options.vehicle.real_autopilot(REAL_CONNECT_TIMEOUT);
     // SIH's vehicle knows only the ground: its pad lies on it. The world's own vehicle and the
     // real autopilots' rigid body land on the pad where it is, on the tractor.
-    let tractor_params = TractorParams {
-        speed_m_s: options.platform_speed_m_s,
-        pad_height_m: if sih {
-            0.0
-        } else {
-            TractorParams::default().pad_height_m
-        },
-        ..TractorParams::default()
+    let pad_height_m = if sih {
+        0.0
+    } else {
+        TractorParams::default().pad_height_m
     };
-    let tractor = Tractor::new(
-        options.path,
-        tractor_params,
-        options.meeting_point_ne_m,
-        0.0,
-    )
-    .map_err(setup)?
-    .parked();
-    let wind = Wind::new(
-        wind_config(options.wind_speed_m_s, options.wind_kind),
-        options.seed ^ 0x5749_4e44,
-    )
-    .map_err(setup)?;
-    let mut world = World::new(tractor, wind);
-    let mut scene = SimScene::new(options.seed);
+    let mut world = World::build(&options.world, pad_height_m)?;
+    let mut scene = SimScene::new(options.world.seed);
     if !sih {
         scene = scene
             .with_tractor_body(TractorBody::default())
@@ -299,7 +276,7 @@ pub fn serve(
         camera_config.height_px,
         camera_config.rate_fps,
     );
-    let mut camera = SimCamera::new(camera_config, options.seed).map_err(setup)?;
+    let mut camera = SimCamera::new(camera_config, options.world.seed).map_err(setup)?;
     let gimbal = camera_gimbal(model).map_err(setup)?;
     if sih && gimbal.is_some() {
         // SIH streams PX4's own telemetry: no gimbal reports the camera's attitude.
@@ -345,7 +322,7 @@ pub fn serve(
         ServeVehicle::Px4Hil { .. } | ServeVehicle::ArduPilotJson { .. } => {
             let real = real.as_ref().expect("a real autopilot");
             // The user started it: no process of ours to keep.
-            let (mut vehicle, _no_process) = RealVehicle::connect(real, options.seed)?;
+            let (mut vehicle, _no_process) = RealVehicle::connect(real, options.world.seed)?;
             if let RealVehicle::ArduPilot(ardupilot) = &mut vehicle {
                 // ArduPilot's first servo packet is its connection: waited for before the
                 // world's clock starts, which then does not race to catch up with the wait.

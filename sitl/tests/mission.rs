@@ -8,6 +8,7 @@ use runtime::registry::PluginRegistry;
 use sim::outcome::SimOutcome;
 use sim::realism::Realism;
 use sim::tractor::PathKind;
+use sim::world::WorldOptions;
 use sitl::mission::{simulate, Faults, ProgressSink, SimOptions, SimProgress};
 use std::path::Path;
 
@@ -46,9 +47,23 @@ fn fly_model(model: &MissionModel, registry: &PluginRegistry, options: SimOption
     simulate(model, registry, &options).unwrap()
 }
 
+/// The same mission in the ideal world.
+fn ideal(options: SimOptions) -> SimOptions {
+    SimOptions {
+        world: WorldOptions {
+            realism: Realism::ideal(),
+            ..options.world
+        },
+        ..options
+    }
+}
+
 fn short(seed: u64) -> SimOptions {
     SimOptions {
-        seed,
+        world: WorldOptions {
+            seed,
+            ..WorldOptions::default()
+        },
         tracking_s: Some(5.0),
         ..SimOptions::default()
     }
@@ -163,14 +178,17 @@ fn no_wind_straight_path_lands_within_15_cm() {
 #[test]
 fn a_gusty_12_m_s_landing_on_the_180_degree_turn_lands_within_15_cm() {
     let options = SimOptions {
-        seed: 3,
-        path: sim::tractor::PathKind::Turn180,
-        wind_speed_m_s: 12.0,
+        world: WorldOptions {
+            seed: 3,
+            path: sim::tractor::PathKind::Turn180,
+            wind_speed_m_s: 12.0,
+            ..WorldOptions::default()
+        },
         tracking_s: Some(15.0),
         fixed_levels: vec![("detection".into(), 10.0)],
         ..SimOptions::default()
     };
-    assert!(!options.realism.is_ideal());
+    assert!(!options.world.realism.is_ideal());
     let outcome = fly(options);
     assert!(outcome.landed_on_pad, "{:#?}", outcome.events);
     let error_m = outcome.touchdown_error_m.unwrap();
@@ -369,10 +387,14 @@ fn a_corrupt_hazard_model_fails_the_task_and_the_mission_flies_on() {
 
 #[test]
 fn the_same_seed_flies_the_same_mission() {
+    let short = short(7);
     let options = SimOptions {
-        wind_speed_m_s: 8.0,
-        path: PathKind::Turn180,
-        ..short(7)
+        world: WorldOptions {
+            wind_speed_m_s: 8.0,
+            path: PathKind::Turn180,
+            ..short.world
+        },
+        ..short
     };
     let mut first = fly(options.clone());
     let mut second = fly(options);
@@ -402,8 +424,7 @@ fn a_lost_mavlink_link_triggers_the_failsafe_and_the_mission_recovers() {
             link_loss: Some((8.0, 10.0)),
             ..Faults::default()
         },
-        realism: Realism::ideal(),
-        ..short(2)
+        ..ideal(short(2))
     });
     let lost = outcome
         .events

@@ -17,6 +17,7 @@ use runtime::plugins::builtin_registry;
 use runtime::registry::PluginRegistry;
 use sim::outcome::SimOutcome;
 use sim::tractor::PathKind;
+use sim::world::WorldOptions;
 use sitl::hil::ardupilot_json::world_start_args;
 use sitl::mission::{simulate, AutopilotKind, RealAutopilot, SimError, SimOptions};
 use std::path::Path;
@@ -60,9 +61,12 @@ fn try_fly(autopilot: RealAutopilot) -> Result<SimOutcome, SimError> {
     };
     let (model, registry) = mission(config);
     let options = SimOptions {
-        path: PathKind::Turn180,
-        wind_speed_m_s: 12.0,
-        seed: 3,
+        world: WorldOptions {
+            path: PathKind::Turn180,
+            wind_speed_m_s: 12.0,
+            seed: 3,
+            ..WorldOptions::default()
+        },
         tracking_s: Some(15.0),
         autopilot: Some(autopilot),
         ..SimOptions::default()

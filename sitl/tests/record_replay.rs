@@ -11,6 +11,7 @@ use runtime::record::read_recording_file;
 use runtime::record::{read_recording, ConfigFile, RecorderOptions};
 use runtime::registry::PluginRegistry;
 use sim::outcome::SimOutcome;
+use sim::world::WorldOptions;
 use sitl::mission::{simulate, SimOptions, SimRecording};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -42,7 +43,10 @@ fn recorded() -> &'static Recorded {
         let path = dir.path().join("mission.mcap");
         let (model, registry) = reference();
         let options = SimOptions {
-            seed: 3,
+            world: WorldOptions {
+                seed: 3,
+                ..WorldOptions::default()
+            },
             tracking_s: Some(4.0),
             fixed_levels: vec![("detection".into(), 10.0)],
             record: Some(SimRecording {

@@ -67,7 +67,7 @@ pub fn fly_all(
                     Ok(outcome) => results.lock().expect("no worker panics")[*cell].push(outcome),
                     Err(error) => {
                         *failure.lock().expect("no worker panics") =
-                            Some(format!("seed {}: {error}", options.seed));
+                            Some(format!("seed {}: {error}", options.world.seed));
                         break;
                     }
                 }

@@ -4,7 +4,7 @@
 use serde::{Deserialize, Serialize};
 use sim::realism::Realism;
 use sim::tractor::PathKind;
-use sitl::mission::WindKind;
+use sim::wind::WindKind;
 use std::fmt;
 use std::str::FromStr;
 

@@ -6,6 +6,7 @@ use crate::sim::args::SimArgs;
 use runtime::energy::MissionModel;
 use runtime::registry::PluginRegistry;
 use sim::outcome::SimOutcome;
+use sim::world::WorldOptions;
 use sitl::mission::SimOptions;
 use std::process::ExitCode;
 
@@ -32,12 +33,16 @@ pub fn evaluate_hazards(
     let results = fly_cells(model, registry, &cells, args, |&(rate, wind_m_s), seed| {
         let mut fixed_levels = args.fixed_levels.clone();
         fixed_levels.push((hazard.name.clone(), rate));
+        let options = args.options(seed);
         SimOptions {
-            wind_speed_m_s: wind_m_s,
+            world: WorldOptions {
+                wind_speed_m_s: wind_m_s,
+                ..options.world
+            },
             tracking_s: Some(args.tracking_s.unwrap_or(HAZARD_EVALUATION_TRACKING_S)),
             fixed_levels,
             record_track: false,
-            ..args.options(seed)
+            ..options
         }
     });
     let Ok(results) = results else {

@@ -15,6 +15,7 @@ use runtime::registry::PluginRegistry;
 use serde::{Deserialize, Serialize};
 use sim::outcome::{SimOutcome, SimSummary};
 use sim::tractor::PathKind;
+use sim::world::WorldOptions;
 use sitl::mission::SimOptions;
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -6,6 +6,7 @@ use runtime::energy::MissionModel;
 use runtime::registry::PluginRegistry;
 use sim::outcome::{SimOutcome, SimSummary};
 use sim::tractor::PathKind;
+use sim::world::WorldOptions;
 use sitl::mission::SimOptions;
 use std::process::ExitCode;
 
@@ -129,16 +130,20 @@ pub fn evaluate_paths(model: &MissionModel, registry: &PluginRegistry, args: &Si
     }
     let started = std::time::Instant::now();
     let results = fly_cells(model, registry, &cells, args, |&(path, speed_m_s), seed| {
+        let options = args.options(seed);
         SimOptions {
-            path,
-            platform_speed_m_s: speed_m_s,
+            world: WorldOptions {
+                path,
+                platform_speed_m_s: speed_m_s,
+                ..options.world
+            },
             tracking_s: Some(
                 args.tracking_s
                     .unwrap_or_else(|| trial_tracking_s(path, speed_m_s)),
             ),
             fixed_levels: fixed_levels.clone(),
             record_track: false,
-            ..args.options(seed)
+            ..options
         }
     });
     let Ok(results) = results else {

@@ -12,14 +12,17 @@ fn mission_options(
     let mut fixed_levels = evaluation.fixed_levels.clone();
     fixed_levels.push((marker_task.to_string(), cell.rate_fps));
     SimOptions {
-        path: cell.path,
-        wind_speed_m_s: cell.wind_m_s,
-        wind_kind: cell.wind_kind.kind(),
-        platform_speed_m_s: cell.tractor_speed_m_s,
-        seed,
+        world: WorldOptions {
+            path: cell.path,
+            wind_speed_m_s: cell.wind_m_s,
+            wind_kind: cell.wind_kind.kind(),
+            platform_speed_m_s: cell.tractor_speed_m_s,
+            seed,
+            realism: cell.world.realism(),
+            ..WorldOptions::default()
+        },
         tracking_s: Some(evaluation.tracking_s),
         fixed_levels,
-        realism: cell.world.realism(),
         ..SimOptions::default()
     }
 }

@@ -342,8 +342,8 @@ fn the_cli_flags_select_the_grid_and_refuse_what_does_not_fit() {
     // A single run keeps one seed; the options honour --ideal.
     let args = parse(&["--ideal"]).unwrap();
     assert_eq!(args.runs(), 1);
-    assert!(args.options(3).realism.is_ideal());
-    assert!(!parse(&[]).unwrap().options(3).realism.is_ideal());
+    assert!(args.options(3).world.realism.is_ideal());
+    assert!(!parse(&[]).unwrap().options(3).world.realism.is_ideal());
 }
 
 #[test]

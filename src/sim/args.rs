@@ -2,7 +2,9 @@
 
 use sim::realism::Realism;
 use sim::tractor::PathKind;
-use sitl::mission::{AutopilotKind, Faults, RealAutopilot, SimOptions, WindKind};
+use sim::wind::WindKind;
+use sim::world::WorldOptions;
+use sitl::mission::{AutopilotKind, Faults, RealAutopilot, SimOptions};
 use std::path::PathBuf;
 
 /// `qosrt sim`'s arguments.
@@ -135,9 +137,9 @@ pub struct SimArgs {
     /// Serve MAVLink only, no camera stream.
     #[arg(long, requires = "serve")]
     pub no_video: bool,
-    /// Where the tractor waits, metres north and east of the take-off point (give `qosrt run`
-    /// the same).
-    #[arg(long, value_name = "N,E", value_parser = crate::args::parse_north_east, default_value = "15,0", requires = "serve")]
+    /// Where the tractor waits, metres north and east of the take-off point (with --serve, give
+    /// `qosrt run` the same).
+    #[arg(long, value_name = "N,E", value_parser = crate::args::parse_north_east, default_value = "15,0")]
     pub meeting_point_ne_m: [f64; 2],
     /// The served world stops after this long.
     #[arg(long, value_name = "S", default_value_t = 600.0, requires = "serve")]
@@ -164,6 +166,24 @@ impl SimArgs {
     /// One mission as the arguments describe it, flown with `seed`.
     pub(crate) fn options(&self, seed: u64) -> SimOptions {
         SimOptions {
+            world: self.world(seed),
+            tracking_s: self.tracking_s,
+            fixed_levels: self.fixed_levels.clone(),
+            faults: Faults::default(),
+            record_track: self.svg.is_some(),
+            autopilot: (self.autopilot != AutopilotKind::Builtin).then(|| RealAutopilot {
+                kind: self.autopilot,
+                instance: self.autopilot_instance,
+                command: self.autopilot_cmd.clone(),
+                connect_timeout: std::time::Duration::from_secs(60),
+            }),
+            ..SimOptions::default()
+        }
+    }
+
+    /// The world as the arguments describe it, with `seed`.
+    pub(crate) fn world(&self, seed: u64) -> WorldOptions {
+        WorldOptions {
             path: self.path,
             wind_speed_m_s: self.wind_m_s,
             wind_kind: if self.dryden {
@@ -172,23 +192,13 @@ impl SimArgs {
                 WindKind::Gusts
             },
             platform_speed_m_s: self.platform_speed_m_s,
+            meeting_point_ne_m: self.meeting_point_ne_m,
             seed,
-            tracking_s: self.tracking_s,
-            fixed_levels: self.fixed_levels.clone(),
-            faults: Faults::default(),
-            record_track: self.svg.is_some(),
             realism: if self.ideal {
                 Realism::ideal()
             } else {
                 Realism::default()
             },
-            autopilot: (self.autopilot != AutopilotKind::Builtin).then(|| RealAutopilot {
-                kind: self.autopilot,
-                instance: self.autopilot_instance,
-                command: self.autopilot_cmd.clone(),
-                connect_timeout: std::time::Duration::from_secs(60),
-            }),
-            ..SimOptions::default()
         }
     }
 

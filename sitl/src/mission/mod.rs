@@ -38,14 +38,14 @@ use sim::estimate::EstimatedTelemetry;
 use sim::gimbal::{Gimbal, GimbalError, GimbalParams};
 use sim::outcome::{LocalisationAccumulator, QosChange, QosSample, SimOutcome, TrackSample};
 use sim::power::{RotorPowerModel, SimBattery, SimPack};
-use sim::realism::{CameraRealism, DriverBehaviour, PadMotion, Realism};
+use sim::realism::CameraRealism;
 use sim::scene::PadOccluder;
 use sim::scene::{HazardField, PadPose, SimScene, TrackScatterConfig, TractorBody};
 use sim::stereo_camera::{SimStereoCamera, StereoCameraConfig};
-use sim::tractor::{PathKind, Tractor, TractorParams};
+use sim::tractor::{Tractor, TractorParams};
 use sim::vehicle::{Multirotor, VehicleParams};
-use sim::wind::{Wind, WindConfig};
-use sim::world::World;
+use sim::wind::Wind;
+use sim::world::{World, WorldOptions};
 use std::time::Instant;
 
 mod autopilot;
@@ -83,7 +83,7 @@ pub fn simulate(
     // The runtime: every configured task whose plugin this build has.
     let mut skipped_tasks = Vec::new();
     let mut builder = SchedulerBuilder::new(registry);
-    builder.seed(options.seed);
+    builder.seed(options.world.seed);
     for task in &config.tasks {
         if registry.contains(&task.plugin) {
             builder.task(task);
@@ -105,27 +105,9 @@ pub fn simulate(
 
     // The world.
     let pad_height_m = TractorParams::default().pad_height_m;
-    let meeting = [MEETING_POINT_NORTH_M, 0.0];
-    let tractor_params = TractorParams {
-        speed_m_s: options.platform_speed_m_s,
-        ..TractorParams::default()
-    };
-    let realism = &options.realism;
-    realism.validate().map_err(setup)?;
-    let mut tractor = Tractor::new(options.path, tractor_params, meeting, 0.0)
-        .map_err(setup)?
-        .parked();
-    if realism.driver != DriverBehaviour::SCRIPTED {
-        tractor = tractor.with_driver(realism.driver, options.seed);
-    }
-    if realism.pad != PadMotion::STILL {
-        tractor = tractor.with_rough_field(realism.pad, options.seed);
-    }
-    let wind = Wind::new(
-        wind_config(options.wind_speed_m_s, options.wind_kind),
-        options.seed ^ 0x5749_4e44,
-    )
-    .map_err(setup)?;
+    let realism = &options.world.realism;
+    let seed = options.world.seed;
+    let mut world = World::build(&options.world, pad_height_m)?;
     let camera_config = SimCameraConfig {
         exposure_ms: realism.camera.exposure_ms,
         render_threads: options.render_threads,
@@ -137,20 +119,18 @@ pub fn simulate(
     // (delivery time, capture time on the runtime's clock, the frame being rendered)
     let mut in_transit: std::collections::VecDeque<(f64, f64, PendingFrame)> =
         std::collections::VecDeque::new();
-    let mut latency_rng = SplitMix64::new(options.seed ^ 0x006c_6174_656e_6379);
-    let mut camera = SimCamera::new(camera_config, options.seed).map_err(setup)?;
+    let mut latency_rng = SplitMix64::new(seed ^ 0x006c_6174_656e_6379);
+    let mut camera = SimCamera::new(camera_config, seed).map_err(setup)?;
     // The hazards stand beside the track the tractor will drive while the CNN watches.
     let watch_s = phases_duration_s(&model.config.mission, |kind| kind == PhaseKind::Track);
-    let track = future_track_ne_m(&tractor, watch_s).map_err(setup)?;
-    let mut world = World::new(tractor, wind);
-    let hazards =
-        HazardField::along_track(options.seed, &track, &track_scatter(&track)).map_err(setup)?;
+    let track = future_track_ne_m(&world.tractor, watch_s).map_err(setup)?;
+    let hazards = HazardField::along_track(seed, &track, &track_scatter(&track)).map_err(setup)?;
     let hazards_total = hazards.hazards.len();
-    let mut scene = SimScene::new(options.seed)
+    let mut scene = SimScene::new(seed)
         .with_tractor_body(TractorBody::default())
         .map_err(setup)?
         .with_hazards(hazards)
-        .with_pad_occluders(pad_occluders(&realism.camera, options.seed));
+        .with_pad_occluders(pad_occluders(&realism.camera, seed));
     // The world's pack has the config's capacity, cells and resistance.
     let spec = model.battery_spec(None).map_err(setup)?;
     let pack = SimPack::new(
@@ -198,7 +178,7 @@ pub fn simulate(
                 realism.estimator,
                 realism.rangefinder,
                 telemetry.latency_s,
-                options.seed,
+                seed,
             );
             let flyer = Flyer::Builtin {
                 vehicle: Box::new(vehicle),
@@ -211,14 +191,14 @@ pub fn simulate(
             let gimbal = gimbal
                 .map(|gimbal| CameraGimbal::for_autopilot(gimbal, real))
                 .transpose()?;
-            let (vehicle, process) = RealVehicle::connect(real, options.seed)?;
+            let (vehicle, process) = RealVehicle::connect(real, seed)?;
             let link = real.open_link(process.as_ref())?;
             let flyer = Flyer::Real(Box::new(GimballedVehicle::new(vehicle, gimbal)));
             (flyer, link, process)
         }
     };
 
-    let mut plan = mission_plan(model, meeting, pad_height_m);
+    let mut plan = mission_plan(model, options.world.meeting_point_ne_m, pad_height_m);
     if options.autopilot.is_some() {
         // A real autopilot refuses to arm until its estimator has converged on the world's
         // sensors (PX4 about 16 s, ArduPilot about 42 s).
@@ -250,7 +230,7 @@ pub fn simulate(
     if let Some(record) = &options.record {
         let mut header = RecordingHeader::new(
             RecordingSource::Sim,
-            options.seed,
+            seed,
             plan,
             config,
             true,
@@ -282,7 +262,7 @@ pub fn simulate(
         .iter()
         .any(|t| registry.reads(t, DEPTH_FRAME.name()));
     let mut stereo = if reads_depth {
-        let camera = SimStereoCamera::new(options.stereo, options.seed).map_err(setup)?;
+        let camera = SimStereoCamera::new(options.stereo, seed).map_err(setup)?;
         let publisher = bus.publisher::<DepthFrame>(DEPTH_FRAME).map_err(setup)?;
         Some((camera, publisher))
     } else {
@@ -637,7 +617,7 @@ pub fn simulate(
     let (flight_energy_wh, companion_energy_wh) = battery.energy_wh();
     let wall_s = wall_start.elapsed().as_secs_f64();
     Ok(SimOutcome {
-        seed: options.seed,
+        seed,
         landed_on_pad: touchdown.is_some_and(|t| t.on_pad),
         touched_down: touchdown.is_some(),
         touchdown_error_m: touchdown.map(|t| t.horizontal_error_m),

@@ -7,16 +7,6 @@ pub const TICK_S: f64 = 0.02;
 /// The physics step inside a tick.
 pub const PHYSICS_DT_S: f64 = 0.005;
 
-/// The wind model to fly in.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum WindKind {
-    /// The seed's gust model.
-    #[default]
-    Gusts,
-    /// Dryden turbulence around the mean wind.
-    Dryden,
-}
-
 /// Faults to inject, as (from, until) in simulated seconds after the tracking phase began.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Faults {
@@ -29,13 +19,10 @@ pub struct Faults {
 }
 
 /// What to fly.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct SimOptions {
-    pub path: PathKind,
-    pub wind_speed_m_s: f64,
-    pub wind_kind: WindKind,
-    pub platform_speed_m_s: f64,
-    pub seed: u64,
+    /// The world to fly in; its seed is the runtime's too.
+    pub world: WorldOptions,
     /// Overrides the duration of the middle phases (the tracking), e.g. to evaluate landings.
     pub tracking_s: Option<f64>,
     /// Tasks held at the level whose knob value is given (the governor leaves them alone).
@@ -52,8 +39,6 @@ pub struct SimOptions {
     /// streaming as a real one does (no lockstep), the world stepped at the pace of real time.
     /// Not deterministic; this is how the onboard path is flown end to end in one process.
     pub real_time: bool,
-    /// How far what the runtime sees is from the truth ([`Realism::ideal`]: not at all).
-    pub realism: Realism,
     /// Threads a camera frame is rendered on; 0: one per core.
     pub render_threads: usize,
     /// Record the mission to MCAP and/or serve it live to Foxglove.
@@ -103,30 +88,6 @@ pub struct SimRecording {
     pub config_files: Vec<ConfigFile>,
 }
 
-impl Default for SimOptions {
-    fn default() -> Self {
-        Self {
-            path: PathKind::Straight,
-            wind_speed_m_s: 0.0,
-            wind_kind: WindKind::Gusts,
-            platform_speed_m_s: 1.5,
-            seed: 0,
-            tracking_s: None,
-            fixed_levels: Vec::new(),
-            max_time_s: None,
-            faults: Faults::default(),
-            record_track: false,
-            stereo: StereoCameraConfig::default(),
-            real_time: false,
-            realism: Realism::default(),
-            render_threads: 0,
-            record: None,
-            progress: None,
-            autopilot: None,
-        }
-    }
-}
-
 /// What failed beneath a setup or link error: the underlying error, or a message.
 pub type Cause = Box<dyn std::error::Error + Send + Sync>;
 
@@ -158,9 +119,6 @@ pub enum SimError {
 /// Time allowed beyond the configured mission before the simulation gives up: take-off,
 /// transit and a few landing attempts.
 pub const TIME_MARGIN_S: f64 = 120.0;
-
-/// Where the tractor waits for the vehicle, north of the take-off point.
-pub(super) const MEETING_POINT_NORTH_M: f64 = 15.0;
 
 /// A setup failure, keeping its cause.
 impl From<sim::world::WorldError> for SimError {

@@ -32,21 +32,6 @@ pub(crate) fn flight_power_w(
     }
 }
 
-/// The wind to fly in: from the east, as the seed's.
-pub(crate) fn wind_config(speed_m_s: f64, kind: WindKind) -> WindConfig {
-    match (speed_m_s > 0.0, kind) {
-        (false, _) => WindConfig::Calm,
-        (true, WindKind::Gusts) => WindConfig::Gusts {
-            speed_m_s,
-            direction_from_rad: std::f64::consts::FRAC_PI_2,
-        },
-        (true, WindKind::Dryden) => WindConfig::Dryden {
-            speed_m_s,
-            direction_from_rad: std::f64::consts::FRAC_PI_2,
-        },
-    }
-}
-
 /// The camera the tracker's params describe (field of view and image size: the
 /// `kalman_tracker`'s, else the `hybrid_tracking`'s), at `[camera] rate_fps`, else 10 fps like
 /// the seed's.
