@@ -120,7 +120,7 @@ fn draw<DB: DrawingBackend>(
 
 /// The simulated mission: vehicle and tractor tracks (north against east) on the left, the
 /// battery's state of charge over time on the right.
-pub fn mission_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, PlotError> {
+pub fn mission_svg(outcome: &sitl::outcome::SimOutcome) -> Result<String, PlotError> {
     if outcome.track.is_empty() {
         return Err(PlotError::NoTrack);
     }
@@ -129,7 +129,7 @@ pub fn mission_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, PlotErr
 
 fn draw_mission<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
-    outcome: &sim::outcome::SimOutcome,
+    outcome: &sitl::outcome::SimOutcome,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     root.fill(&WHITE)?;
     let (left, right) = root.split_horizontally(620);
@@ -199,7 +199,7 @@ fn draw_mission<DB: DrawingBackend>(
 
 /// The simulated mission's QoS levels and battery over time: the battery's state of charge
 /// above, every task's level (0 = its lowest) below, as the governor set them.
-pub fn qos_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, PlotError> {
+pub fn qos_svg(outcome: &sitl::outcome::SimOutcome) -> Result<String, PlotError> {
     if outcome.track.is_empty() || outcome.qos_track.is_empty() {
         return Err(PlotError::NoTrack);
     }
@@ -208,7 +208,7 @@ pub fn qos_svg(outcome: &sim::outcome::SimOutcome) -> Result<String, PlotError> 
 
 fn draw_qos<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
-    outcome: &sim::outcome::SimOutcome,
+    outcome: &sitl::outcome::SimOutcome,
 ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
     root.fill(&WHITE)?;
     let (top, bottom) = root.split_vertically(260);
@@ -312,10 +312,10 @@ mod tests {
 
     #[test]
     fn the_mission_svg_draws_both_tracks_and_refuses_an_empty_one() {
-        let mut outcome = sim::outcome::SimOutcome::default();
+        let mut outcome = sitl::outcome::SimOutcome::default();
         assert!(mission_svg(&outcome).is_err());
         outcome.track = (0..10)
-            .map(|i| sim::outcome::TrackSample {
+            .map(|i| sitl::outcome::TrackSample {
                 time_s: i as f64,
                 vehicle_ne_m: [i as f64, 0.5],
                 altitude_m: 8.0,
@@ -334,12 +334,12 @@ mod tests {
 
     #[test]
     fn the_qos_svg_draws_every_task_that_had_a_level_and_the_battery() {
-        let mut outcome = sim::outcome::SimOutcome {
+        let mut outcome = sitl::outcome::SimOutcome {
             mission_time_s: 10.0,
             ..Default::default()
         };
         outcome.track = (0..10)
-            .map(|i| sim::outcome::TrackSample {
+            .map(|i| sitl::outcome::TrackSample {
                 time_s: i as f64,
                 vehicle_ne_m: [0.0, 0.0],
                 altitude_m: 8.0,
@@ -348,7 +348,7 @@ mod tests {
             })
             .collect();
         assert!(qos_svg(&outcome).is_err(), "no levels: nothing to plot");
-        let sample = |time_s: f64, levels: &[(&str, usize)]| sim::outcome::QosSample {
+        let sample = |time_s: f64, levels: &[(&str, usize)]| sitl::outcome::QosSample {
             time_s,
             levels: levels
                 .iter()

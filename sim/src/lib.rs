@@ -8,7 +8,6 @@ pub mod estimate;
 pub mod flight;
 pub mod gimbal;
 pub mod hazard_dataset;
-pub mod outcome;
 pub mod power;
 pub mod quadrotor;
 pub mod realism;

@@ -6,10 +6,11 @@
 //! with the world, deterministic for a seed and faster than real time. [`serve::serve`] runs
 //! the world alone on the wall clock, for a runtime in another process (`qosrt sim --serve`).
 
-pub mod hazard_score;
 pub mod hil;
 pub mod mission;
+pub mod outcome;
 pub mod px4_sih;
+pub mod score;
 pub mod serve;
 #[cfg(feature = "gstreamer")]
 pub mod video_out;

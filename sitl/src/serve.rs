@@ -32,23 +32,11 @@ use std::net::SocketAddr;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use nalgebra::{Vector2, Vector3};
 use runtime::energy::MissionModel;
-use sim::autopilot::MavlinkAutopilot;
-use sim::camera::{SimCamera, VehiclePose};
-use sim::power::{RotorPowerModel, SimBattery, SimPack};
 use sim::realism::Realism;
-use sim::scene::{SimScene, TractorBody};
-use sim::tractor::{PadState, TractorParams};
-use sim::vehicle::Touchdown;
-use sim::vehicle::{Multirotor, VehicleParams};
-use sim::world::{World, WorldOptions};
+use sim::world::WorldOptions;
 
-use crate::mission::{
-    camera_config, camera_gimbal, flight_power_w, hover_power_w, pad_pose, AutopilotKind,
-    CameraGimbal, GimballedVehicle, RealAutopilot, RealVehicle, SimError, PHYSICS_DT_S, TICK_S,
-};
-use crate::px4_sih::SihListener;
+use crate::mission::{AutopilotKind, RealAutopilot, SimError, TICK_S};
 
 /// The tractor drives off once the vehicle has been this close to the pad, horizontally …
 pub const MEET_RADIUS_M: f64 = 1.0;
@@ -228,24 +216,6 @@ pub struct ServeOutcome {
     pub end: String,
 }
 
-/// The vehicle, as the world moves it or as PX4 reports it.
-enum Flyer {
-    Simulated {
-        vehicle: Box<Multirotor>,
-        autopilot: Box<MavlinkAutopilot>,
-        battery: SimBattery,
-        rotors: RotorPowerModel,
-    },
-    Px4Sih {
-        listener: SihListener,
-        airborne: bool,
-        previous_down_m: Option<f64>,
-        touchdown: Option<ServedTouchdown>,
-    },
-    /// A real autopilot flying the world's rigid body.
-    Real(Box<GimballedVehicle>),
-}
-
 /// Serves the world until the vehicle has landed, `max_time_s` passes or `stop` is set;
 /// `on_truth` hears the truth once a second and at the touchdown.
 pub fn serve(
@@ -254,96 +224,11 @@ pub fn serve(
     stop: &AtomicBool,
     mut on_truth: impl FnMut(&Truth, Option<&ServedTouchdown>),
 ) -> Result<ServeOutcome, ServeError> {
-    let sih = matches!(options.vehicle, ServeVehicle::Px4Sih { .. });
-    let real = options.vehicle.real_autopilot(REAL_CONNECT_TIMEOUT);
-    // SIH's vehicle knows only the ground: its pad lies on it. The world's own vehicle and the
-    // real autopilots' rigid body land on the pad where it is, on the tractor.
-    let pad_height_m = if sih {
-        0.0
-    } else {
-        TractorParams::default().pad_height_m
-    };
-    let mut world = World::build(&options.world, pad_height_m)?;
-    let mut scene = SimScene::new(options.world.seed);
-    if !sih {
-        scene = scene
-            .with_tractor_body(TractorBody::default())
-            .map_err(setup)?;
-    }
-    let camera_config = camera_config(model);
-    let (width_px, height_px, rate_fps) = (
-        camera_config.width_px,
-        camera_config.height_px,
-        camera_config.rate_fps,
-    );
-    let mut camera = SimCamera::new(camera_config, options.world.seed).map_err(setup)?;
-    let gimbal = camera_gimbal(model).map_err(setup)?;
-    if sih && gimbal.is_some() {
-        // SIH streams PX4's own telemetry: no gimbal reports the camera's attitude.
-        return Err(setup(
-            "PX4 SIH flies no camera gimbal: set the tracker's camera_mount = \"body\"",
-        ));
-    }
-    let mut video = open_video(options.video_port, width_px, height_px, rate_fps)?;
-
-    let mut flyer = match options.vehicle {
-        ServeVehicle::Simulated => {
-            let spec = model.battery_spec(None).map_err(setup)?;
-            let pack = SimPack::new(
-                spec.capacity_mah,
-                spec.cell_count,
-                spec.internal_resistance_ohm,
-            )
-            .map_err(setup)?;
-            let hover_power_w = hover_power_w(model)
-                .ok_or_else(|| ServeError::Setup("[flight] gives no hover_power_w".into()))?;
-            let rotors = RotorPowerModel::iris(hover_power_w);
-            rotors.validate().map_err(setup)?;
-            Flyer::Simulated {
-                vehicle: Box::new({
-                    let vehicle = Multirotor::on_ground(VehicleParams::default(), Vector3::zeros())
-                        .map_err(setup)?;
-                    match gimbal {
-                        Some(gimbal) => vehicle.with_gimbal(gimbal),
-                        None => vehicle,
-                    }
-                }),
-                autopilot: Box::new(MavlinkAutopilot::bind_local(options.mavlink_addr, false)?),
-                battery: SimBattery::new(pack),
-                rotors,
-            }
-        }
-        ServeVehicle::Px4Sih { instance } => Flyer::Px4Sih {
-            listener: SihListener::bind(instance)?,
-            airborne: false,
-            previous_down_m: None,
-            touchdown: None,
-        },
-        ServeVehicle::Px4Hil { .. } | ServeVehicle::ArduPilotJson { .. } => {
-            let real = real.as_ref().expect("a real autopilot");
-            // The user started it: no process of ours to keep.
-            let (mut vehicle, _no_process) = RealVehicle::connect(real, options.world.seed)?;
-            if let RealVehicle::ArduPilot(ardupilot) = &mut vehicle {
-                // ArduPilot's first servo packet is its connection: waited for before the
-                // world's clock starts, which then does not race to catch up with the wait.
-                ardupilot
-                    .step(&mut world)
-                    .map_err(|error| SimError::Link(error.into()))?;
-            }
-            // The gimbal reports itself on the vehicle's MAVLink network, as in a mission.
-            let gimbal = gimbal
-                .map(|gimbal| CameraGimbal::for_autopilot(gimbal, real))
-                .transpose()?;
-            Flyer::Real(Box::new(GimballedVehicle::new(vehicle, gimbal)))
-        }
-    };
-
+    let mut served = ServedWorld::build(model, options)?;
     let start = Instant::now();
     let mut tick = 0u64;
     let mut late_ticks = 0u64;
-    let mut frames_rendered = 0u64;
     let mut next_truth_s = 0.0;
-    let mut above_since_s: Option<f64> = None;
     let mut touchdown_seen: Option<ServedTouchdown> = None;
     let mut motors_stopped_since_s: Option<f64> = None;
     let end = loop {
@@ -354,129 +239,21 @@ pub fn serve(
         if time_s > options.max_time_s {
             break format!("time limit of {:.0} s reached", options.max_time_s);
         }
-        let pad = world.pad();
-        // The vehicle's pose now, and its commands.
-        let pose = match &mut flyer {
-            Flyer::Simulated {
-                vehicle,
-                autopilot,
-                battery,
-                ..
-            } => {
-                autopilot.publish(&vehicle.snapshot(time_s, battery.reading()))?;
-                apply_commands(vehicle, autopilot, time_s)?;
-                // The camera's pose (the gimbal's, where it hangs in one); the same position.
-                Some(vehicle.camera_pose())
-            }
-            Flyer::Px4Sih {
-                listener,
-                airborne,
-                previous_down_m,
-                touchdown,
-            } => {
-                // Stamped at arrival (within the poll), not at the tick.
-                listener.poll(start.elapsed().as_secs_f64())?;
-                let pose = listener.track.pose_at(time_s);
-                if let Some(pose) = &pose {
-                    let down_m = pose.position_ned_m.z;
-                    *airborne |= -down_m > PX4_AIRBORNE_HEIGHT_M;
-                    if let (true, None, Some(previous)) = (*airborne, *touchdown, *previous_down_m)
-                    {
-                        if previous < -PX4_TOUCHDOWN_HEIGHT_M && down_m >= -PX4_TOUCHDOWN_HEIGHT_M {
-                            *touchdown = Some(judge(time_s, pose, &pad));
-                        }
-                    }
-                    *previous_down_m = Some(down_m);
-                }
-                pose
-            }
-            // The body's camera; its commands reach the autopilot, not the world.
-            Flyer::Real(real) => Some(real.camera_pose()),
-        };
-        let Some(pose) = pose else {
+        let pad = served.world.pad();
+        let Some(pose) = served.pose(time_s, &pad, start)? else {
             // PX4 has not spoken yet: nothing to render from.
             tick += 1;
             pace(start, tick);
             continue;
         };
-
-        // The tractor drives off once the vehicle is with it.
-        let relative = pose.position_ned_m - pad.centre_ned_m;
-        let above = relative.xy().norm() <= MEET_RADIUS_M && -relative.z >= MEET_HEIGHT_M;
-        above_since_s = if above {
-            above_since_s.or(Some(time_s))
-        } else {
-            None
-        };
-        world.tractor_moving |=
-            above_since_s.is_some_and(|since_s| time_s - since_s >= MEET_DWELL_S);
-
-        if camera.is_due(time_s) {
-            scene
-                .set_pad_pose(pad_pose(&world.tractor))
-                .map_err(setup)?;
-            match camera.capture_frame(time_s, &pose, &scene) {
-                Ok(frame) => {
-                    frames_rendered += 1;
-                    // Captured at the tick's instant on the wall clock, however late the
-                    // world runs.
-                    let captured = start + Duration::from_secs_f64(time_s);
-                    send_frame(&mut video, &frame.image, captured.elapsed())?;
-                }
-                Err(error) => eprintln!("camera: {error}"),
-            }
-        }
-
-        // Physics: the world's one step (the tractor, the wind, the body), to the tick's end.
-        let substeps = (TICK_S / PHYSICS_DT_S).round() as usize;
-        match &mut flyer {
-            Flyer::Simulated {
-                vehicle, autopilot, ..
-            } => {
-                // A real autopilot acts on a setpoint as it arrives, not on the next 50 Hz tick.
-                world.step_tick(
-                    time_s,
-                    TICK_S,
-                    PHYSICS_DT_S,
-                    vehicle.as_mut(),
-                    |t_s, vehicle| {
-                        pace_to(start, t_s);
-                        apply_commands(vehicle, autopilot, t_s)
-                    },
-                )?
-            }
-            // SIH moves its own vehicle: the world moves only the tractor.
-            Flyer::Px4Sih { .. } => {
-                if world.tractor_moving {
-                    for _ in 0..substeps {
-                        world.tractor.step(PHYSICS_DT_S).map_err(setup)?;
-                    }
-                }
-            }
-            // In lockstep with the autopilot: its steps up to the tick's end.
-            Flyer::Real(real) => real.step_until(&mut world, time_s + TICK_S, TICK_S)?,
-        }
-        let touchdown = match &mut flyer {
-            Flyer::Simulated {
-                vehicle,
-                battery,
-                rotors,
-                ..
-            } => {
-                let flight_w = flight_power_w(vehicle.as_ref(), &mut world.wind, rotors, time_s);
-                // The companion computer's draw is the runtime's to report, not the world's.
-                battery.drain(flight_w, 0.0, TICK_S).map_err(setup)?;
-                vehicle.touchdown().map(ServedTouchdown::from)
-            }
-            Flyer::Px4Sih { touchdown, .. } => *touchdown,
-            // The body's real contact with the pad or the ground.
-            Flyer::Real(real) => real.vehicle.body().touchdown().map(ServedTouchdown::from),
-        };
+        served.follow_meeting(time_s, &pose, &pad);
+        served.render(time_s, &pose, start)?;
+        let touchdown = served.step(time_s, start)?;
         let truth = Truth {
             time_s,
             vehicle_ned_m: pose.position_ned_m.into(),
-            pad_ned_m: world.pad().centre_ned_m.into(),
-            tractor_moving: world.tractor_moving,
+            pad_ned_m: served.world.pad().centre_ned_m.into(),
+            tractor_moving: served.world.tractor_moving,
         };
         if touchdown.is_some() && touchdown_seen.is_none() {
             touchdown_seen = touchdown;
@@ -485,12 +262,7 @@ pub fn serve(
             on_truth(&truth, None);
             next_truth_s += 1.0;
         }
-        // The world's own vehicle needs no world to disarm; a real autopilot does.
-        let motors_stopped = match &flyer {
-            Flyer::Real(real) => !motors_running(&real.vehicle),
-            Flyer::Simulated { .. } | Flyer::Px4Sih { .. } => true,
-        };
-        motors_stopped_since_s = if motors_stopped {
+        motors_stopped_since_s = if served.motors_stopped() {
             motors_stopped_since_s.or(Some(time_s))
         } else {
             None
@@ -508,13 +280,13 @@ pub fn serve(
         }
         pace(start, tick);
     };
-    let (frames_sent, video_latency_ms) = video_stats(&video);
+    let (frames_sent, video_latency_ms) = video_stats(&served.video);
     Ok(ServeOutcome {
         vehicle: options.vehicle.describe(),
         touchdown: touchdown_seen,
         landed_on_pad: touchdown_seen.is_some_and(|t| t.on_pad),
         time_s: tick as f64 * TICK_S,
-        frames_rendered,
+        frames_rendered: served.frames_rendered,
         frames_sent,
         video_latency_ms,
         late_ticks,
@@ -522,137 +294,13 @@ pub fn serve(
     })
 }
 
-/// Whether the real autopilot drives its motors (PX4: armed; ArduPilot: any motor spinning,
-/// all its servo outputs tell).
-fn motors_running(real: &RealVehicle) -> bool {
-    match real {
-        RealVehicle::Px4(px4) => px4.last_commands.as_ref().is_some_and(|c| c.armed),
-        RealVehicle::ArduPilot(ardupilot) => ardupilot.motors_spinning(),
-    }
-}
-
-impl From<Touchdown> for ServedTouchdown {
-    fn from(t: Touchdown) -> Self {
-        Self {
-            time_s: t.time_s,
-            on_pad: t.on_pad,
-            horizontal_error_m: t.horizontal_error_m,
-            vertical_speed_m_s: t.vertical_speed_m_s,
-            tilt_deg: t.tilt_deg,
-        }
-    }
-}
-
-/// A touchdown on the ground under PX4's vehicle, against the pad lying there.
-fn judge(time_s: f64, pose: &VehiclePose, pad: &PadState) -> ServedTouchdown {
-    let offset: Vector2<f64> = pad.to_pad_frame(pose.position_ned_m.xy());
-    ServedTouchdown {
-        time_s,
-        on_pad: pad.contains_ne(pose.position_ned_m.xy()),
-        horizontal_error_m: offset.norm(),
-        vertical_speed_m_s: pose.velocity_ned_m_s.z,
-        tilt_deg: pose.attitude.tilt_rad().to_degrees(),
-    }
-}
-
-/// Sleeps until tick `tick` is due on the wall clock.
-fn pace(start: Instant, tick: u64) {
-    pace_to(start, tick as f64 * TICK_S);
-}
-
-/// Sleeps until world time `time_s` is due on the wall clock.
-fn pace_to(start: Instant, time_s: f64) {
-    let due = start + Duration::from_secs_f64(time_s);
-    std::thread::sleep(due.saturating_duration_since(Instant::now()));
-}
-
-/// The runtime's commands that have arrived, applied and acknowledged.
-fn apply_commands(
-    vehicle: &mut Multirotor,
-    autopilot: &mut MavlinkAutopilot,
-    time_s: f64,
-) -> Result<(), ServeError> {
-    for received in autopilot.receive()? {
-        let result = vehicle.command(received.command, time_s);
-        if let Some(pending) = received.ack {
-            autopilot.ack(pending, &result)?;
-        }
-    }
-    Ok(())
-}
-
-#[cfg(feature = "gstreamer")]
-type Video = Option<crate::video_out::RtpH264Sender>;
-/// Without GStreamer the world has no video stream to feed.
-#[cfg(not(feature = "gstreamer"))]
-struct Video;
-
-#[cfg(feature = "gstreamer")]
-fn open_video(
-    port: Option<u16>,
-    width_px: usize,
-    height_px: usize,
-    rate_fps: f64,
-) -> Result<Video, ServeError> {
-    use crate::video_out::{RtpH264Sender, VideoStreamConfig};
-    port.map(|port| {
-        RtpH264Sender::open(VideoStreamConfig::new(port, width_px, height_px, rate_fps))
-            .map_err(ServeError::from)
-    })
-    .transpose()
-}
-
-#[cfg(not(feature = "gstreamer"))]
-fn open_video(
-    port: Option<u16>,
-    _width_px: usize,
-    _height_px: usize,
-    _rate_fps: f64,
-) -> Result<Video, ServeError> {
-    match port {
-        Some(_) => Err(ServeError::NoVideo),
-        None => Ok(Video),
-    }
-}
-
-#[cfg(feature = "gstreamer")]
-fn send_frame(
-    video: &mut Video,
-    image: &algorithms::vision::image::GrayImage,
-    age: Duration,
-) -> Result<(), ServeError> {
-    if let Some(video) = video {
-        video.send(image, age)?;
-    }
-    Ok(())
-}
-
-#[cfg(not(feature = "gstreamer"))]
-fn send_frame(
-    _video: &mut Video,
-    _image: &algorithms::vision::image::GrayImage,
-    _age: Duration,
-) -> Result<(), ServeError> {
-    Ok(())
-}
-
-#[cfg(feature = "gstreamer")]
-fn video_stats(video: &Video) -> (u64, Option<[f64; 2]>) {
-    video.as_ref().map_or((0, None), |video| {
-        (
-            video.frames_sent(),
-            video.latency_ms().map(|(p50, p99)| [p50, p99]),
-        )
-    })
-}
-
-#[cfg(not(feature = "gstreamer"))]
-fn video_stats(_video: &Video) -> (u64, Option<[f64; 2]>) {
-    (0, None)
-}
-
+mod served;
 #[cfg(test)]
 mod tests;
+mod video;
+
+use served::{pace, ServedWorld};
+use video::video_stats;
 
 /// A setup failure, keeping its cause.
 impl From<sim::world::WorldError> for ServeError {

@@ -5,11 +5,11 @@ use runtime::config::load_file;
 use runtime::energy::{load_mission_model, MissionModel};
 use runtime::plugins::builtin_registry;
 use runtime::registry::PluginRegistry;
-use sim::outcome::SimOutcome;
 use sim::realism::Realism;
 use sim::tractor::PathKind;
 use sim::world::WorldOptions;
 use sitl::mission::{simulate, Faults, ProgressSink, SimOptions, SimProgress};
+use sitl::outcome::SimOutcome;
 use std::path::Path;
 
 fn reference() -> (MissionModel, PluginRegistry) {

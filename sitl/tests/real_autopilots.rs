@@ -15,11 +15,11 @@ use runtime::config::load_file;
 use runtime::energy::{load_mission_model, MissionModel};
 use runtime::plugins::builtin_registry;
 use runtime::registry::PluginRegistry;
-use sim::outcome::SimOutcome;
 use sim::tractor::PathKind;
 use sim::world::WorldOptions;
 use sitl::hil::ardupilot_json::world_start_args;
 use sitl::mission::{simulate, AutopilotKind, RealAutopilot, SimError, SimOptions};
+use sitl::outcome::SimOutcome;
 use std::path::Path;
 use std::time::{Duration, Instant};
 

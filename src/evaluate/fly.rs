@@ -4,8 +4,8 @@ use crate::sim::args::SimArgs;
 use indicatif::{ProgressBar, ProgressStyle};
 use runtime::energy::MissionModel;
 use runtime::registry::PluginRegistry;
-use sim::outcome::SimOutcome;
 use sitl::mission::{simulate, SimOptions};
+use sitl::outcome::SimOutcome;
 
 /// Flies `args.runs` seeds (default 1, from `args.seed`) of every cell, with the options `options_of(cell,
 /// seed)`; the outcomes grouped by cell. A mission that cannot be flown is reported, and ends

@@ -5,9 +5,9 @@ use crate::check::EXIT_INVALID_CONFIG;
 use crate::sim::args::SimArgs;
 use runtime::energy::MissionModel;
 use runtime::registry::PluginRegistry;
-use sim::outcome::SimOutcome;
 use sim::world::WorldOptions;
 use sitl::mission::SimOptions;
+use sitl::outcome::SimOutcome;
 use std::process::ExitCode;
 
 /// The tracking phase of a hazard evaluation: 300 m of track at 1.5 m/s, room for the seed's 32

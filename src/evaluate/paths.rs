@@ -4,10 +4,10 @@ use super::fly::fly_cells;
 use crate::sim::args::SimArgs;
 use runtime::energy::MissionModel;
 use runtime::registry::PluginRegistry;
-use sim::outcome::{SimOutcome, SimSummary};
 use sim::tractor::PathKind;
 use sim::world::WorldOptions;
 use sitl::mission::SimOptions;
+use sitl::outcome::{SimOutcome, SimSummary};
 use std::process::ExitCode;
 
 /// The tracking phase of a path trial, at least: the S, the circle and the figure-eight curve
@@ -60,7 +60,7 @@ impl PathRow {
         let summary = SimSummary::of(outcomes);
         let localised: Vec<_> = outcomes.iter().filter_map(|o| o.localisation).collect();
         let samples: usize = localised.iter().map(|l| l.samples).sum();
-        let pooled = |f: &dyn Fn(&sim::outcome::LocalisationError) -> f64| {
+        let pooled = |f: &dyn Fn(&sitl::outcome::LocalisationError) -> f64| {
             (samples > 0).then(|| {
                 (localised
                     .iter()

@@ -6,8 +6,8 @@ use crate::evaluate::{evaluate_hazards, evaluate_paths};
 use crate::load::load;
 use indicatif::{ProgressBar, ProgressStyle};
 use runtime::record::ConfigFile;
-use sim::outcome::{SimOutcome, SimSummary};
 use sitl::mission::{simulate, SimProgress, SimRecording};
+use sitl::outcome::{SimOutcome, SimSummary};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 

@@ -8,14 +8,9 @@ use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use runtime::link::{LinkConfig, MavlinkLink};
-use sim::autopilot::MavlinkAutopilot;
 use sim::camera::VehiclePose;
-use sim::estimate::EstimatedTelemetry;
-use sim::power::RotorPowerModel;
 use sim::quadrotor::{Quadrotor, QuadrotorParams};
 use sim::sensors::{Home, SensorParams, Sensors};
-use sim::vehicle::{Multirotor, Touchdown};
-use sim::wind::Wind;
 use sim::world::World;
 
 use crate::hil::ardupilot_json::{ArduPilotJson, ArduPilotVehicle};
@@ -284,19 +279,6 @@ fn failed_start(
     }
 }
 
-/// The world's vehicle in a mission, and who flies it.
-pub(super) enum Flyer {
-    /// The built-in multirotor with its PX4-like autopilot on the loopback, and the estimator
-    /// errors its telemetry carries.
-    Builtin {
-        vehicle: Box<Multirotor>,
-        autopilot: Box<MavlinkAutopilot>,
-        estimate: Box<EstimatedTelemetry>,
-    },
-    /// A real autopilot, and the camera's gimbal reporting itself where the mission has one.
-    Real(Box<GimballedVehicle>),
-}
-
 /// A real autopilot's vehicle in the world, and its camera's gimbal where the mission has one:
 /// the mission harness and the served world fly it alike.
 pub(crate) struct GimballedVehicle {
@@ -395,52 +377,5 @@ impl CameraGimbal {
 
     fn camera_pose(&self, body: &VehiclePose) -> VehiclePose {
         self.gimbal.camera_pose(body)
-    }
-}
-
-impl Flyer {
-    pub(super) fn camera_pose(&self) -> VehiclePose {
-        match self {
-            Self::Builtin { vehicle, .. } => vehicle.camera_pose(),
-            Self::Real(real) => real.camera_pose(),
-        }
-    }
-
-    pub(super) fn position_ned_m(&self) -> nalgebra::Vector3<f64> {
-        match self {
-            Self::Builtin { vehicle, .. } => vehicle.position_ned_m(),
-            Self::Real(real) => real.vehicle.body().position_ned_m(),
-        }
-    }
-
-    /// Where it last came down.
-    pub(super) fn touchdown(&self) -> Option<Touchdown> {
-        self.touchdowns().last().copied()
-    }
-
-    /// Its first contact after flying.
-    pub(super) fn first_touchdown(&self) -> Option<Touchdown> {
-        self.touchdowns().first().copied()
-    }
-
-    fn touchdowns(&self) -> &[Touchdown] {
-        match self {
-            Self::Builtin { vehicle, .. } => vehicle.touchdowns(),
-            Self::Real(real) => real.vehicle.body().touchdowns(),
-        }
-    }
-
-    pub(super) fn flight_power_w(
-        &self,
-        wind: &mut Wind,
-        rotors: &RotorPowerModel,
-        time_s: f64,
-    ) -> f64 {
-        match self {
-            Self::Builtin { vehicle, .. } => {
-                super::flight_power_w(vehicle.as_ref(), wind, rotors, time_s)
-            }
-            Self::Real(real) => super::flight_power_w(real.vehicle.body(), wind, rotors, time_s),
-        }
     }
 }

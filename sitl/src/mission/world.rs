@@ -1,6 +1,7 @@
 //! Building the simulated world from the mission: powers, wind, camera, pad, track.
 
 use super::*;
+use sim::power::{SimBattery, SimPack};
 use sim::world::Body;
 
 /// The rotors' hover power: the config's, or without one the first phase's flight power.
@@ -13,6 +14,23 @@ pub(crate) fn hover_power_w(model: &MissionModel) -> Option<f64> {
             .iter()
             .find_map(|p| config.flight.power_w(&p.name))
     })
+}
+
+/// The world's pack, with the config's capacity, cells and resistance, and the rotors' power at
+/// the config's hover power.
+pub(crate) fn pack_and_rotors(
+    model: &MissionModel,
+) -> Result<(SimBattery, RotorPowerModel), Cause> {
+    let spec = model.battery_spec(None)?;
+    let pack = SimPack::new(
+        spec.capacity_mah,
+        spec.cell_count,
+        spec.internal_resistance_ohm,
+    )?;
+    let hover_power_w = hover_power_w(model).ok_or("[flight] gives no hover_power_w")?;
+    let rotors = RotorPowerModel::iris(hover_power_w);
+    rotors.validate()?;
+    Ok((SimBattery::new(pack), rotors))
 }
 
 /// What the rotors draw now: by the vehicle's airspeed and climb rate while it flies. The wind
@@ -82,11 +100,6 @@ pub(super) fn mission_plan(
     plan.meeting_point_ne_m = meeting;
     plan
 }
-
-/// A relative state counts towards the localisation error when it is at most this old …
-pub(super) const LOCALISATION_MAX_AGE_S: f64 = 0.1;
-/// … and its last vision fix at most this old (the tracker has the target, not a memory of it).
-pub(super) const LOCALISATION_MAX_FIX_GAP_S: f64 = 1.0;
 
 /// Where the tractor will drive in the next `duration_s`: its track sampled every half second,
 /// from a copy driven ahead (the tractor is deterministic).

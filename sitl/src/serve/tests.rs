@@ -1,6 +1,11 @@
 //! The served world's pure parts: vehicle specs and the touchdown judge.
 
+use super::served::judge;
 use super::*;
+use nalgebra::{Vector2, Vector3};
+use sim::camera::VehiclePose;
+use sim::tractor::PadState;
+use sim::vehicle::Touchdown;
 
 #[test]
 fn vehicles_parse() {
