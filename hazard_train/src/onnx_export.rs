@@ -54,6 +54,38 @@ pub fn export(
     input_height_px: usize,
     info: &ExportInfo<'_>,
 ) -> Result<ModelProto, ExportError> {
+    check_input_size(input_width_px, input_height_px)?;
+    net.config.validate()?;
+    let (rows, columns) = (input_height_px / STRIDE_PX, input_width_px / STRIDE_PX);
+    let cells = rows * columns;
+    let mut nodes = Vec::new();
+    let mut initializers = Vec::new();
+
+    let current = push_conv_layers(net, &mut nodes, &mut initializers)?;
+    push_decode(net, &current, rows, columns, &mut nodes, &mut initializers);
+
+    let graph = GraphProto {
+        node: nodes,
+        name: "hazard_yolo".into(),
+        initializer: initializers,
+        input: vec![value_info(
+            INPUT_NAME,
+            &[1, 1, input_height_px, input_width_px],
+        )],
+        output: vec![value_info(OUTPUT_NAME, &[1, cells, ATTRIBUTES])],
+        ..Default::default()
+    };
+    Ok(model_proto(
+        net,
+        graph,
+        input_width_px,
+        input_height_px,
+        info,
+    ))
+}
+
+/// The input must tile into whole grid cells.
+fn check_input_size(input_width_px: usize, input_height_px: usize) -> Result<(), ExportError> {
     let fits = |side: usize| side > 0 && side.is_multiple_of(STRIDE_PX);
     if !(fits(input_width_px) && fits(input_height_px)) {
         return Err(ExportError::InputSize {
@@ -61,12 +93,17 @@ pub fn export(
             height_px: input_height_px,
         });
     }
-    net.config.validate()?;
-    let (rows, columns) = (input_height_px / STRIDE_PX, input_width_px / STRIDE_PX);
-    let cells = rows * columns;
-    let mut nodes = Vec::new();
-    let mut initializers = Vec::new();
+    Ok(())
+}
 
+/// The convolution stack from the input to the head's raw output: a Conv per layer (batch
+/// normalisation folded into its weights) and a LeakyRelu after every layer but the head.
+/// Returns the name of the head's output.
+fn push_conv_layers(
+    net: &HazardNet,
+    nodes: &mut Vec<NodeProto>,
+    initializers: &mut Vec<TensorProto>,
+) -> Result<String, ExportError> {
     let mut current = INPUT_NAME.to_string();
     let head = net.layers.len() - 1;
     for (index, (ConvWeights { weight, bias }, layer)) in
@@ -115,8 +152,20 @@ pub fn export(
             current = act;
         }
     }
+    Ok(current)
+}
 
-    // The decode, channel groups as in HazardNet::decode.
+/// The decode, channel groups as in HazardNet::decode: from the head's raw output `current`
+/// to the `detections` output, [1, cells, ATTRIBUTES].
+fn push_decode(
+    net: &HazardNet,
+    current: &str,
+    rows: usize,
+    columns: usize,
+    nodes: &mut Vec<NodeProto>,
+    initializers: &mut Vec<TensorProto>,
+) {
+    let cells = rows * columns;
     initializers.push(int64_tensor("split_sizes", &[2, 2, 1 + CLASSES as i64]));
     initializers.push(float_tensor("xy_scale", &[], vec![2.0 * STRIDE_PX as f32]));
     initializers.push(float_tensor(
@@ -135,7 +184,7 @@ pub fn export(
     ));
     nodes.push(node(
         "Split",
-        &[&current, "split_sizes"],
+        &[current, "split_sizes"],
         &["raw_xy", "raw_wh", "raw_scores"],
         vec![int("axis", 1)],
     ));
@@ -168,18 +217,16 @@ pub fn export(
         &[OUTPUT_NAME],
         vec![ints("perm", &[0, 2, 1])],
     ));
+}
 
-    let graph = GraphProto {
-        node: nodes,
-        name: "hazard_yolo".into(),
-        initializer: initializers,
-        input: vec![value_info(
-            INPUT_NAME,
-            &[1, 1, input_height_px, input_width_px],
-        )],
-        output: vec![value_info(OUTPUT_NAME, &[1, cells, ATTRIBUTES])],
-        ..Default::default()
-    };
+/// The model around `graph`: opset, producer and the metadata for people and tools.
+fn model_proto(
+    net: &HazardNet,
+    graph: GraphProto,
+    input_width_px: usize,
+    input_height_px: usize,
+    info: &ExportInfo<'_>,
+) -> ModelProto {
     let metadata = [
         ("class_names", info.class_names.join(",")),
         ("input_width_px", input_width_px.to_string()),
@@ -191,7 +238,7 @@ pub fn export(
             "[cx, cy, w, h, objectness, class probabilities...] in input pixels".into(),
         ),
     ];
-    Ok(ModelProto {
+    ModelProto {
         ir_version: IR_VERSION,
         opset_import: vec![OperatorSetIdProto {
             domain: String::new(),
@@ -209,7 +256,7 @@ pub fn export(
             })
             .collect(),
         ..Default::default()
-    })
+    }
 }
 
 /// Serialises `model` to `path`.

@@ -203,71 +203,16 @@ impl Governor {
         let tolerance = UTILITY_TOLERANCE * current.utility.abs().max(1.0);
         let change = if current.energy_wh > available_wh {
             // Safety first: down now, whatever the dwell.
-            let fitting = match with_margin {
-                Some(candidate) => Some(candidate),
-                None => self.best_fitting(&problem, 0.0, rating_power_w)?,
-            };
-            match fitting {
-                Some(candidate) => Some((candidate, ChangeReason::CurrentLevelsDoNotFit)),
-                None => {
-                    let cheapest = self.cheapest(&problem, rating_power_w)?;
-                    let shortfall_wh = cheapest.evaluation.energy_wh - cheapest.available_wh;
-                    let tolerance_wh = (self.config.land_now_sigma * sigma_wh)
-                        .min(self.config.land_now_max_tolerance_fraction * self.reserve_wh);
-                    if shortfall_wh > tolerance_wh {
-                        let land_now = LandNow {
-                            time_s,
-                            phase,
-                            needed_wh: cheapest.evaluation.energy_wh,
-                            available_wh: cheapest.available_wh,
-                            shortfall_wh,
-                            tolerance_wh,
-                            reserve_wh: self.reserve_wh,
-                            correction_ratio,
-                        };
-                        tracing::error!(
-                            target: "qosrt::governor",
-                            time_s,
-                            phase = %self.problem.phases[phase].name,
-                            needed_wh = land_now.needed_wh,
-                            available_wh = land_now.available_wh,
-                            shortfall_wh,
-                            tolerance_wh,
-                            reserve_wh = land_now.reserve_wh,
-                            correction_ratio,
-                            "LAND NOW: even the lowest QoS levels cannot finish the mission with the reserve"
-                        );
-                        self.land_now = true;
-                        events.push(GovernorEvent::LandNow(land_now));
-                        Some((cheapest, ChangeReason::LandNow))
-                    } else {
-                        // Short by less than the estimate's uncertainty: the lowest levels,
-                        // watched at every re-plan.
-                        Some((cheapest, ChangeReason::CurrentLevelsDoNotFit))
-                    }
-                }
-            }
+            self.switch_down(&problem, with_margin, rating_power_w, &summary, events)?
         } else {
-            let dwell_over = self
-                .last_change_s
-                .is_none_or(|t| time_s - t >= self.config.min_dwell_s);
-            let better = |c: &Candidate| c.evaluation.utility > current.utility + tolerance;
-            // Schmitt trigger: go up only once a better plan would keep twice the margin, then
-            // as high as keeps the margin. Slack that grows slowly (the estimate settling, the
-            // mission shortening) then makes one step up instead of a staircase of small ones.
-            let triggered = dwell_over
-                && with_margin.as_ref().is_some_and(better)
-                && self
-                    .best_fitting(
-                        &problem,
-                        SWITCH_UP_TRIGGER_MARGINS * margin_wh,
-                        rating_power_w,
-                    )?
-                    .as_ref()
-                    .is_some_and(better);
-            with_margin
-                .filter(|_| triggered)
-                .map(|c| (c, ChangeReason::MoreEnergyAvailable))
+            self.switch_up(
+                &problem,
+                with_margin,
+                &current,
+                tolerance,
+                rating_power_w,
+                &summary,
+            )?
         };
         if let Some((candidate, reason)) = change {
             if candidate.levels != current_levels {
@@ -294,6 +239,113 @@ impl Governor {
         }
         self.last_replan = Some(summary);
         Ok(())
+    }
+
+    /// The levels in force do not fit: the best plan that fits with the margin, else without
+    /// it, else the cheapest (landing now when even that is short by more than the estimate's
+    /// uncertainty). `summary` is this re-plan's so far: its time, phase, σ and correction.
+    fn switch_down(
+        &mut self,
+        problem: &PlanProblem,
+        with_margin: Option<Candidate>,
+        rating_power_w: f64,
+        summary: &ReplanSummary,
+        events: &mut Vec<GovernorEvent>,
+    ) -> Result<Option<(Candidate, ChangeReason)>, ReplanError> {
+        let fitting = match with_margin {
+            Some(candidate) => Some(candidate),
+            None => self.best_fitting(problem, 0.0, rating_power_w)?,
+        };
+        Ok(match fitting {
+            Some(candidate) => Some((candidate, ChangeReason::CurrentLevelsDoNotFit)),
+            None => Some(self.cheapest_or_land_now(problem, rating_power_w, summary, events)?),
+        })
+    }
+
+    /// Nothing fits: the cheapest levels, landing now when even they are short by more than
+    /// the estimate's uncertainty allows.
+    fn cheapest_or_land_now(
+        &mut self,
+        problem: &PlanProblem,
+        rating_power_w: f64,
+        summary: &ReplanSummary,
+        events: &mut Vec<GovernorEvent>,
+    ) -> Result<(Candidate, ChangeReason), ReplanError> {
+        let (time_s, phase, sigma_wh, correction_ratio) = (
+            summary.time_s,
+            summary.phase,
+            summary.sigma_wh,
+            summary.correction_ratio,
+        );
+        let cheapest = self.cheapest(problem, rating_power_w)?;
+        let shortfall_wh = cheapest.evaluation.energy_wh - cheapest.available_wh;
+        let tolerance_wh = (self.config.land_now_sigma * sigma_wh)
+            .min(self.config.land_now_max_tolerance_fraction * self.reserve_wh);
+        if shortfall_wh > tolerance_wh {
+            let land_now = LandNow {
+                time_s,
+                phase,
+                needed_wh: cheapest.evaluation.energy_wh,
+                available_wh: cheapest.available_wh,
+                shortfall_wh,
+                tolerance_wh,
+                reserve_wh: self.reserve_wh,
+                correction_ratio,
+            };
+            tracing::error!(
+                target: "qosrt::governor",
+                time_s,
+                phase = %self.problem.phases[phase].name,
+                needed_wh = land_now.needed_wh,
+                available_wh = land_now.available_wh,
+                shortfall_wh,
+                tolerance_wh,
+                reserve_wh = land_now.reserve_wh,
+                correction_ratio,
+                "LAND NOW: even the lowest QoS levels cannot finish the mission with the reserve"
+            );
+            self.land_now = true;
+            events.push(GovernorEvent::LandNow(land_now));
+            Ok((cheapest, ChangeReason::LandNow))
+        } else {
+            // Short by less than the estimate's uncertainty: the lowest levels,
+            // watched at every re-plan.
+            Ok((cheapest, ChangeReason::CurrentLevelsDoNotFit))
+        }
+    }
+
+    /// The levels in force fit: the best plan that keeps the margin, when it is better than
+    /// `current` by more than `tolerance`, the dwell is over and the switch up is triggered.
+    fn switch_up(
+        &self,
+        problem: &PlanProblem,
+        with_margin: Option<Candidate>,
+        current: &Evaluation,
+        tolerance: f64,
+        rating_power_w: f64,
+        summary: &ReplanSummary,
+    ) -> Result<Option<(Candidate, ChangeReason)>, ReplanError> {
+        let (time_s, margin_wh) = (summary.time_s, summary.margin_wh);
+        let dwell_over = self
+            .last_change_s
+            .is_none_or(|t| time_s - t >= self.config.min_dwell_s);
+        let better = |c: &Candidate| c.evaluation.utility > current.utility + tolerance;
+        // Schmitt trigger: go up only once a better plan would keep twice the margin, then
+        // as high as keeps the margin. Slack that grows slowly (the estimate settling, the
+        // mission shortening) then makes one step up instead of a staircase of small ones.
+        let triggered = dwell_over
+            && with_margin.as_ref().is_some_and(better)
+            && self
+                .best_fitting(
+                    problem,
+                    SWITCH_UP_TRIGGER_MARGINS * margin_wh,
+                    rating_power_w,
+                )?
+                .as_ref()
+                .is_some_and(better);
+        Ok(with_margin
+            .filter(|_| triggered)
+            .map(|c| (c, ChangeReason::MoreEnergyAvailable)))
     }
 
     /// The cheapest levels and the budget at their mean power.

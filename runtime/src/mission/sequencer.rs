@@ -216,30 +216,8 @@ impl MissionSequencer {
         let mut commands = Vec::new();
         let mut events = Vec::new();
         let now_s = input.time_s;
-        if input.link_up != self.link_up {
-            if input.link_up && self.ever_connected {
-                events.push(MissionEvent::LinkRestored);
-            } else if !input.link_up {
-                events.push(MissionEvent::LinkLost);
-            }
-            self.ever_connected |= input.link_up;
-            self.link_up = input.link_up;
-            if input.link_up && self.stage == Stage::Flying {
-                // The autopilot has left offboard meanwhile: stream, then re-enter.
-                self.stage = Stage::EnteringOffboard {
-                    since_s: now_s,
-                    sent_s: None,
-                };
-            }
-        }
-        if let Some(reason) = input.land_now {
-            if !self.land_now {
-                self.land_now = true;
-                events.push(MissionEvent::LandNow {
-                    reason: reason.to_string(),
-                });
-            }
-        }
+        self.note_link(input.link_up, now_s, &mut events);
+        self.note_land_now(input.land_now, &mut events);
         let (true, Some(autopilot)) = (input.link_up, input.autopilot) else {
             return (commands, events);
         };
@@ -256,174 +234,315 @@ impl MissionSequencer {
             Stage::Observing => self.observe(&autopilot, now_s, &mut events),
             Stage::Released => {}
             Stage::WaitingForAutopilot => {
-                if autopilot.kind == AutopilotKind::ArduPilot
-                    && autopilot.mode != AutopilotMode::Offboard
-                {
-                    // ArduCopter takes off only in GUIDED: enter it first (once a second).
-                    if now_s - self.guided_sent_s >= self.plan.command_retry_s {
-                        commands.push(VehicleCommand::SetOffboard);
-                        self.guided_sent_s = now_s;
-                    }
-                } else if autopilot.armed {
-                    // Already armed (a restarted companion): go straight to the take-off.
-                    self.stage = Stage::TakingOff {
-                        since_s: now_s,
-                        sent_s: f64::NEG_INFINITY,
-                    };
-                } else {
-                    commands.push(VehicleCommand::Arm);
-                    self.stage = Stage::Arming {
-                        since_s: now_s,
-                        sent_s: now_s,
-                    };
-                }
+                self.step_waiting_for_autopilot(&autopilot, now_s, &mut commands)
             }
-            Stage::Arming { since_s, sent_s } => {
-                if autopilot.armed {
-                    events.push(MissionEvent::Armed);
-                    self.takeoff_altitude_down_m = Some(autopilot.position_ned_m.z);
-                    commands.push(VehicleCommand::Takeoff {
-                        altitude_m: self.plan.cruise_altitude_m,
-                    });
-                    self.stage = Stage::TakingOff {
-                        since_s: now_s,
-                        sent_s: now_s,
-                    };
-                } else if now_s - since_s > self.plan.command_timeout_s {
-                    events.push(MissionEvent::Aborted {
-                        reason: format!(
-                            "the autopilot did not arm within {} s",
-                            self.plan.command_timeout_s
-                        ),
-                    });
-                    self.stage = Stage::Done;
-                } else if now_s - sent_s >= self.plan.command_retry_s {
-                    commands.push(VehicleCommand::Arm);
-                    self.stage = Stage::Arming {
-                        since_s,
-                        sent_s: now_s,
-                    };
-                }
-            }
-            Stage::TakingOff { since_s, sent_s } => {
-                let start_down_m = *self
-                    .takeoff_altitude_down_m
-                    .get_or_insert(autopilot.position_ned_m.z);
-                let climbed_m = start_down_m - autopilot.position_ned_m.z;
-                self.takeoff_mode_seen |= autopilot.mode == AutopilotMode::Takeoff;
-                // PX4 may finish its take-off lower (MIS_TAKEOFF_ALT) and hold: the flight out
-                // climbs the rest.
-                let px4_takeoff_done = self.takeoff_mode_seen
-                    && autopilot.mode != AutopilotMode::Takeoff
-                    && climbed_m > 1.0;
-                if climbed_m >= self.plan.cruise_altitude_m - 0.3 || px4_takeoff_done {
-                    events.push(MissionEvent::TookOff);
-                    self.start_phase(0, now_s, &mut events);
-                    self.stage = Stage::EnteringOffboard {
-                        since_s: now_s,
-                        sent_s: None,
-                    };
-                } else if !autopilot.armed && now_s - since_s > 2.0 * self.plan.command_retry_s {
-                    // Disarmed on the ground again (a refused take-off times out the arming).
-                    self.stage = Stage::WaitingForAutopilot;
-                } else if now_s - since_s > self.plan.command_timeout_s {
-                    events.push(MissionEvent::Aborted {
-                        reason: format!(
-                            "the take-off did not reach {} m within {} s",
-                            self.plan.cruise_altitude_m, self.plan.command_timeout_s
-                        ),
-                    });
-                    commands.push(VehicleCommand::Land);
-                    self.stage = Stage::Done;
-                } else if !self.taking_off(&autopilot, climbed_m)
-                    && now_s - sent_s >= self.plan.command_retry_s
-                {
-                    commands.push(VehicleCommand::Takeoff {
-                        altitude_m: self.plan.cruise_altitude_m,
-                    });
-                    self.stage = Stage::TakingOff {
-                        since_s,
-                        sent_s: now_s,
-                    };
-                }
-            }
-            Stage::EnteringOffboard { since_s, sent_s } => {
-                commands.push(self.flying_setpoint(&autopilot, input, now_s, &mut events));
-                if autopilot.mode == AutopilotMode::Offboard {
-                    events.push(MissionEvent::OffboardEngaged);
-                    self.stage = Stage::Flying;
-                } else if now_s - since_s >= self.plan.offboard_preamble_s
-                    && sent_s.is_none_or(|sent| now_s - sent >= self.plan.command_retry_s)
-                {
-                    commands.push(VehicleCommand::SetOffboard);
-                    self.stage = Stage::EnteringOffboard {
-                        since_s,
-                        sent_s: Some(now_s),
-                    };
-                }
-            }
+            Stage::Arming { since_s, sent_s } => self.step_arming(
+                &autopilot,
+                now_s,
+                since_s,
+                sent_s,
+                &mut commands,
+                &mut events,
+            ),
+            Stage::TakingOff { since_s, sent_s } => self.step_taking_off(
+                &autopilot,
+                now_s,
+                since_s,
+                sent_s,
+                &mut commands,
+                &mut events,
+            ),
+            Stage::EnteringOffboard { since_s, sent_s } => self.step_entering_offboard(
+                &autopilot,
+                input,
+                since_s,
+                sent_s,
+                &mut commands,
+                &mut events,
+            ),
             Stage::Flying if self.plan.landing != LandingBy::Vision && landing_phase => {
-                let precise = self.plan.landing == LandingBy::AutopilotPrecision;
-                let reason = if precise {
-                    "the autopilot's precision landing on the tracker's LANDING_TARGET"
-                } else {
-                    "no vision landing (no camera, or no landing task in the last phase): the autopilot lands where the vehicle is"
-                };
-                events.push(MissionEvent::LandingHere {
-                    reason: reason.into(),
-                });
-                commands.push(land_command(precise));
-                self.stage = Stage::Landing {
-                    sent_s: now_s,
-                    precise,
-                };
+                self.hand_landing_to_autopilot(now_s, &mut commands, &mut events)
             }
             Stage::Flying => {
-                // The landing task's touchdown rides on with the pad (its setpoint holds the
-                // pad's velocity and presses down) until the autopilot's land detector agrees,
-                // or for at most `touchdown_confirm_s`: the autopilot's land mode holds still
-                // over the ground, and a moving pad would drive away from under a vehicle
-                // still a hand's breadth above it.
-                let task_touchdown = input.landing.is_some_and(|setpoint| {
-                    setpoint.mode == algorithms::control::landing::LandingMode::Landed
-                });
-                let since_s = if task_touchdown && !autopilot.landed {
-                    Some(*self.touchdown_unconfirmed_since_s.get_or_insert(now_s))
-                } else {
-                    None
-                };
-                self.touchdown_unconfirmed_since_s = since_s;
-                let touchdown = autopilot.landed
-                    || since_s
-                        .is_some_and(|since_s| now_s - since_s >= self.plan.touchdown_confirm_s);
-                if landing_phase && touchdown {
-                    events.push(MissionEvent::Touchdown);
-                    commands.push(VehicleCommand::Land);
-                    self.stage = Stage::Landing {
-                        sent_s: now_s,
-                        precise: false,
-                    };
-                } else {
-                    commands.push(self.flying_setpoint(&autopilot, input, now_s, &mut events));
-                }
+                self.step_flying(&autopilot, input, landing_phase, &mut commands, &mut events)
             }
-            Stage::Landing { sent_s, precise } => {
-                if !autopilot.armed {
-                    events.push(MissionEvent::Disarmed);
-                    self.stage = Stage::Done;
-                } else if autopilot.mode != AutopilotMode::Land
-                    && now_s - sent_s >= self.plan.command_retry_s
-                {
-                    commands.push(land_command(precise));
-                    self.stage = Stage::Landing {
-                        sent_s: now_s,
-                        precise,
-                    };
-                }
-            }
+            Stage::Landing { sent_s, precise } => self.step_landing(
+                &autopilot,
+                now_s,
+                sent_s,
+                precise,
+                &mut commands,
+                &mut events,
+            ),
             Stage::Done => {}
         }
         (commands, events)
+    }
+
+    /// Records a link change (lost, restored); the first connection is not a restoration.
+    fn note_link(&mut self, link_up: bool, now_s: f64, events: &mut Vec<MissionEvent>) {
+        if link_up != self.link_up {
+            if link_up && self.ever_connected {
+                events.push(MissionEvent::LinkRestored);
+            } else if !link_up {
+                events.push(MissionEvent::LinkLost);
+            }
+            self.ever_connected |= link_up;
+            self.link_up = link_up;
+            if link_up && self.stage == Stage::Flying {
+                // The autopilot has left offboard meanwhile: stream, then re-enter.
+                self.stage = Stage::EnteringOffboard {
+                    since_s: now_s,
+                    sent_s: None,
+                };
+            }
+        }
+    }
+
+    /// Latches the governor's first "land now" (reported once).
+    fn note_land_now(&mut self, land_now: Option<&'static str>, events: &mut Vec<MissionEvent>) {
+        if let Some(reason) = land_now {
+            if !self.land_now {
+                self.land_now = true;
+                events.push(MissionEvent::LandNow {
+                    reason: reason.to_string(),
+                });
+            }
+        }
+    }
+
+    /// Before arming: GUIDED first on ArduPilot, then arm (or straight to the take-off when
+    /// already armed).
+    fn step_waiting_for_autopilot(
+        &mut self,
+        autopilot: &AutopilotView,
+        now_s: f64,
+        commands: &mut Vec<VehicleCommand>,
+    ) {
+        if autopilot.kind == AutopilotKind::ArduPilot && autopilot.mode != AutopilotMode::Offboard {
+            // ArduCopter takes off only in GUIDED: enter it first (once a second).
+            if now_s - self.guided_sent_s >= self.plan.command_retry_s {
+                commands.push(VehicleCommand::SetOffboard);
+                self.guided_sent_s = now_s;
+            }
+        } else if autopilot.armed {
+            // Already armed (a restarted companion): go straight to the take-off.
+            self.stage = Stage::TakingOff {
+                since_s: now_s,
+                sent_s: f64::NEG_INFINITY,
+            };
+        } else {
+            commands.push(VehicleCommand::Arm);
+            self.stage = Stage::Arming {
+                since_s: now_s,
+                sent_s: now_s,
+            };
+        }
+    }
+
+    /// Waiting for the arming (retried, aborted after the command timeout); once armed, the
+    /// take-off is sent.
+    fn step_arming(
+        &mut self,
+        autopilot: &AutopilotView,
+        now_s: f64,
+        since_s: f64,
+        sent_s: f64,
+        commands: &mut Vec<VehicleCommand>,
+        events: &mut Vec<MissionEvent>,
+    ) {
+        if autopilot.armed {
+            events.push(MissionEvent::Armed);
+            self.takeoff_altitude_down_m = Some(autopilot.position_ned_m.z);
+            commands.push(VehicleCommand::Takeoff {
+                altitude_m: self.plan.cruise_altitude_m,
+            });
+            self.stage = Stage::TakingOff {
+                since_s: now_s,
+                sent_s: now_s,
+            };
+        } else if now_s - since_s > self.plan.command_timeout_s {
+            events.push(MissionEvent::Aborted {
+                reason: format!(
+                    "the autopilot did not arm within {} s",
+                    self.plan.command_timeout_s
+                ),
+            });
+            self.stage = Stage::Done;
+        } else if now_s - sent_s >= self.plan.command_retry_s {
+            commands.push(VehicleCommand::Arm);
+            self.stage = Stage::Arming {
+                since_s,
+                sent_s: now_s,
+            };
+        }
+    }
+
+    /// Climbing to the cruise altitude (the take-off retried, aborted with a landing after the
+    /// command timeout); once up, the first phase begins and offboard is entered.
+    fn step_taking_off(
+        &mut self,
+        autopilot: &AutopilotView,
+        now_s: f64,
+        since_s: f64,
+        sent_s: f64,
+        commands: &mut Vec<VehicleCommand>,
+        events: &mut Vec<MissionEvent>,
+    ) {
+        let start_down_m = *self
+            .takeoff_altitude_down_m
+            .get_or_insert(autopilot.position_ned_m.z);
+        let climbed_m = start_down_m - autopilot.position_ned_m.z;
+        self.takeoff_mode_seen |= autopilot.mode == AutopilotMode::Takeoff;
+        // PX4 may finish its take-off lower (MIS_TAKEOFF_ALT) and hold: the flight out
+        // climbs the rest.
+        let px4_takeoff_done =
+            self.takeoff_mode_seen && autopilot.mode != AutopilotMode::Takeoff && climbed_m > 1.0;
+        if climbed_m >= self.plan.cruise_altitude_m - 0.3 || px4_takeoff_done {
+            events.push(MissionEvent::TookOff);
+            self.start_phase(0, now_s, events);
+            self.stage = Stage::EnteringOffboard {
+                since_s: now_s,
+                sent_s: None,
+            };
+        } else if !autopilot.armed && now_s - since_s > 2.0 * self.plan.command_retry_s {
+            // Disarmed on the ground again (a refused take-off times out the arming).
+            self.stage = Stage::WaitingForAutopilot;
+        } else if now_s - since_s > self.plan.command_timeout_s {
+            events.push(MissionEvent::Aborted {
+                reason: format!(
+                    "the take-off did not reach {} m within {} s",
+                    self.plan.cruise_altitude_m, self.plan.command_timeout_s
+                ),
+            });
+            commands.push(VehicleCommand::Land);
+            self.stage = Stage::Done;
+        } else if !self.taking_off(autopilot, climbed_m)
+            && now_s - sent_s >= self.plan.command_retry_s
+        {
+            commands.push(VehicleCommand::Takeoff {
+                altitude_m: self.plan.cruise_altitude_m,
+            });
+            self.stage = Stage::TakingOff {
+                since_s,
+                sent_s: now_s,
+            };
+        }
+    }
+
+    /// Streaming setpoints, and after the preamble asking for offboard (retried) until the
+    /// autopilot reports it.
+    fn step_entering_offboard(
+        &mut self,
+        autopilot: &AutopilotView,
+        input: &SequencerInput,
+        since_s: f64,
+        sent_s: Option<f64>,
+        commands: &mut Vec<VehicleCommand>,
+        events: &mut Vec<MissionEvent>,
+    ) {
+        let now_s = input.time_s;
+        commands.push(self.flying_setpoint(autopilot, input, now_s, events));
+        if autopilot.mode == AutopilotMode::Offboard {
+            events.push(MissionEvent::OffboardEngaged);
+            self.stage = Stage::Flying;
+        } else if now_s - since_s >= self.plan.offboard_preamble_s
+            && sent_s.is_none_or(|sent| now_s - sent >= self.plan.command_retry_s)
+        {
+            commands.push(VehicleCommand::SetOffboard);
+            self.stage = Stage::EnteringOffboard {
+                since_s,
+                sent_s: Some(now_s),
+            };
+        }
+    }
+
+    /// The landing phase without vision landing: the autopilot lands, by its precision landing
+    /// or where the vehicle is.
+    fn hand_landing_to_autopilot(
+        &mut self,
+        now_s: f64,
+        commands: &mut Vec<VehicleCommand>,
+        events: &mut Vec<MissionEvent>,
+    ) {
+        let precise = self.plan.landing == LandingBy::AutopilotPrecision;
+        let reason = if precise {
+            "the autopilot's precision landing on the tracker's LANDING_TARGET"
+        } else {
+            "no vision landing (no camera, or no landing task in the last phase): the autopilot lands where the vehicle is"
+        };
+        events.push(MissionEvent::LandingHere {
+            reason: reason.into(),
+        });
+        commands.push(land_command(precise));
+        self.stage = Stage::Landing {
+            sent_s: now_s,
+            precise,
+        };
+    }
+
+    /// In offboard: the phase's setpoint, until touchdown in the landing phase hands over to
+    /// the autopilot's land mode.
+    fn step_flying(
+        &mut self,
+        autopilot: &AutopilotView,
+        input: &SequencerInput,
+        landing_phase: bool,
+        commands: &mut Vec<VehicleCommand>,
+        events: &mut Vec<MissionEvent>,
+    ) {
+        let now_s = input.time_s;
+        // The landing task's touchdown rides on with the pad (its setpoint holds the
+        // pad's velocity and presses down) until the autopilot's land detector agrees,
+        // or for at most `touchdown_confirm_s`: the autopilot's land mode holds still
+        // over the ground, and a moving pad would drive away from under a vehicle
+        // still a hand's breadth above it.
+        let task_touchdown = input.landing.is_some_and(|setpoint| {
+            setpoint.mode == algorithms::control::landing::LandingMode::Landed
+        });
+        let since_s = if task_touchdown && !autopilot.landed {
+            Some(*self.touchdown_unconfirmed_since_s.get_or_insert(now_s))
+        } else {
+            None
+        };
+        self.touchdown_unconfirmed_since_s = since_s;
+        let touchdown = autopilot.landed
+            || since_s.is_some_and(|since_s| now_s - since_s >= self.plan.touchdown_confirm_s);
+        if landing_phase && touchdown {
+            events.push(MissionEvent::Touchdown);
+            commands.push(VehicleCommand::Land);
+            self.stage = Stage::Landing {
+                sent_s: now_s,
+                precise: false,
+            };
+        } else {
+            commands.push(self.flying_setpoint(autopilot, input, now_s, events));
+        }
+    }
+
+    /// Landing by the autopilot: the land command retried until its land mode shows, done once
+    /// disarmed.
+    fn step_landing(
+        &mut self,
+        autopilot: &AutopilotView,
+        now_s: f64,
+        sent_s: f64,
+        precise: bool,
+        commands: &mut Vec<VehicleCommand>,
+        events: &mut Vec<MissionEvent>,
+    ) {
+        if !autopilot.armed {
+            events.push(MissionEvent::Disarmed);
+            self.stage = Stage::Done;
+        } else if autopilot.mode != AutopilotMode::Land
+            && now_s - sent_s >= self.plan.command_retry_s
+        {
+            commands.push(land_command(precise));
+            self.stage = Stage::Landing {
+                sent_s: now_s,
+                precise,
+            };
+        }
     }
 
     /// The mode someone else chose while qosrt held offboard or was landing: `None` while the
