@@ -196,10 +196,15 @@ fn start_runner(args: &FlyArgs) -> Result<Runner, Failure> {
         ..LinkConfig::default()
     };
     let link = MavlinkLink::connect(&args.mavlink, link_config)?;
+    // The tasks project with the mission's camera: a frame of another size is refused.
+    let camera_settings = loaded.config.camera.clone().unwrap_or_default();
     let camera = args
         .camera
         .as_deref()
-        .map(runtime::camera::open)
+        .map(|spec| {
+            let size_px = (camera_settings.width_px, camera_settings.height_px);
+            runtime::camera::open(spec, Some(size_px))
+        })
         .transpose()?;
     let mut plan = MissionPlan::for_mission(&loaded.config);
     plan.control = args.control;

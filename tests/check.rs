@@ -251,7 +251,7 @@ const BAD_CASES: &[BadCase] = &[
     },
     BadCase {
         name: "a camera with no frames",
-        replace: &[("rate_fps = 10.0\n\n# The tasks.", "rate_fps = -10.0\n\n# The tasks.")],
+        replace: &[("rate_fps = 10.0\n# The downward", "rate_fps = -10.0\n# The downward")],
         expect: &[at(
             "-10.0",
             0,
@@ -260,11 +260,38 @@ const BAD_CASES: &[BadCase] = &[
     },
     BadCase {
         name: "misspelt camera key",
-        replace: &[("rate_fps = 10.0\n\n# The tasks.", "rate_fsp = 10.0\n\n# The tasks.")],
+        replace: &[("rate_fps = 10.0\n# The downward", "rate_fsp = 10.0\n# The downward")],
         expect: &[at(
             "rate_fsp",
             0,
             "unknown key `rate_fsp` in [camera]; did you mean `rate_fps`?",
+        )],
+    },
+    BadCase {
+        name: "a camera with no field of view",
+        replace: &[("horizontal_fov_deg = 60.0", "horizontal_fov_deg = 0.0")],
+        expect: &[at(
+            "0.0\nwidth_px",
+            0,
+            "the camera's horizontal_fov_deg must be within (0, 180), found 0",
+        )],
+    },
+    BadCase {
+        name: "a camera mount that is neither",
+        replace: &[("mount = \"gimbal\"", "mount = \"tripod\"")],
+        expect: &[at("\"tripod\"", 0, "`tripod`")],
+    },
+    BadCase {
+        name: "a task that describes the camera itself",
+        replace: &[(
+            "fix_angle_std_deg = 1.7 ",
+            "camera_horizontal_fov_deg = 70.0\nfix_angle_std_deg = 1.7 ",
+        )],
+        expect: &[at(
+            "70.0\nfix_angle",
+            0,
+            "the camera is described once, in [camera]: write `horizontal_fov_deg = …` there \
+             instead of `camera_horizontal_fov_deg` in task `tracking`'s params",
         )],
     },
     BadCase {

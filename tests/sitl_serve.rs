@@ -234,7 +234,7 @@ fn the_real_px4_lands_on_the_moving_pad_the_world_renders() {
     // PX4 answers a correction with its lean about 0.4 s late, which at its 1.5 m/s descent is
     // 0.6 m: the small corrections begin that long before contact (docs/flying.md).
     let text = std::fs::read_to_string(&config).unwrap();
-    let text = text.replace("camera_mount = \"gimbal\"", "camera_mount = \"body\"");
+    let text = text.replace("mount = \"gimbal\"", "mount = \"body\"");
     let text = text.replace(
         "gust_feed_forward_s = 0.75",
         "touchdown_correction_lead_s = 0.4\ngust_feed_forward_s = 0.75",

@@ -65,6 +65,7 @@ fn khz_task(index: usize) -> TaskConfig {
         trigger: Default::default(),
         max_idle_ms: None,
         config_dir: None,
+        camera: Default::default(),
     }
 }
 

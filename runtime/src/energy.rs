@@ -584,6 +584,7 @@ mod tests {
         let mut declared = model.clone();
         declared.config.camera = Some(crate::config::CameraSettings {
             rate_fps: Some(4.0),
+            ..Default::default()
         });
         assert_eq!(phase(&declared.plan_problem(), "landing"), landing);
     }

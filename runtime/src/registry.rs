@@ -282,6 +282,7 @@ mod tests {
             trigger: Default::default(),
             max_idle_ms: None,
             config_dir: None,
+            camera: Default::default(),
         }
     }
 

@@ -68,7 +68,7 @@ fn ardupilot_precision_landing_follows_the_trackers_landing_target() {
         &text[hazard_task..]
     )
     .replace("duration_s = 900.0", "duration_s = 4.0")
-    .replace("camera_mount = \"gimbal\"", "camera_mount = \"body\"")
+    .replace("mount = \"gimbal\"", "mount = \"body\"")
     .replace(
         "path = \"profiles/",
         &format!("path = \"{}/profiles/", root.display()),

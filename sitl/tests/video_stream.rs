@@ -39,7 +39,7 @@ fn rendered_frames_survive_h264_over_udp_to_within_a_pixel() {
     const CAPTURE_AGE: Duration = Duration::from_millis(40);
     let port = free_port();
     // The receiver first, as a companion waits for its camera.
-    let mut camera_in = runtime::camera::open(&format!("rtp-h264:{port}")).unwrap();
+    let mut camera_in = runtime::camera::open(&format!("rtp-h264:{port}"), None).unwrap();
     let config = SimCameraConfig::default();
     let mut sender = RtpH264Sender::open(VideoStreamConfig::new(
         port,

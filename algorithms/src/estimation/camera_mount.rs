@@ -14,12 +14,12 @@
 //! camera looking down is pitched −90° ([`gimbal_quaternion`], [`camera_attitude_of_gimbal`]).
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use super::projection::Attitude;
 
 /// How the camera is mounted.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum CameraMount {
     /// Fixed to the body, looking along its down axis (seed 003).

@@ -150,13 +150,19 @@ fn quoted(value: &str) -> String {
     format!("\"{}\"", value.replace('\\', "\\\\").replace('"', "\\\""))
 }
 
-/// Opens the source a spec names.
-pub fn open(spec: &str) -> Result<Box<dyn CameraSource>, CameraSourceError> {
+/// Opens the source a spec names; a frame of another size than `expected_size_px` (the
+/// mission's `[camera]`, which the tasks project with) is a named error, counted as malformed.
+/// `None` takes the first good frame's size.
+pub fn open(
+    spec: &str,
+    expected_size_px: Option<(usize, usize)>,
+) -> Result<Box<dyn CameraSource>, CameraSourceError> {
     match CameraSpec::parse(spec)? {
         // A recorded folder flown as a camera starts again at its end, as a camera keeps going.
         CameraSpec::Folder { path, rate_fps } => {
             Ok(Box::new(ImageFolderSource::open(ImageFolderConfig {
                 looping: true,
+                expected_size_px,
                 ..ImageFolderConfig::new(path, rate_fps)
             })?))
         }
@@ -164,6 +170,7 @@ pub fn open(spec: &str) -> Result<Box<dyn CameraSource>, CameraSourceError> {
         CameraSpec::Gstreamer { pipeline, sync } => {
             let config = super::gstreamer::GstreamerConfig {
                 sync,
+                expected_size_px,
                 ..super::gstreamer::GstreamerConfig::new(pipeline)
             };
             Ok(Box::new(super::gstreamer::GstreamerSource::open(config)?))
@@ -237,6 +244,30 @@ mod tests {
         );
     }
 
+    /// The mission's `[camera]` size holds for a folder camera: a frame of another size is a
+    /// named error, the first one included; without it the first frame sets the size.
+    #[test]
+    fn a_folder_camera_refuses_frames_not_of_the_missions_size() {
+        let dir = tempfile::tempdir().unwrap();
+        image::GrayImage::from_pixel(32, 24, image::Luma([90]))
+            .save(dir.path().join("frame.png"))
+            .unwrap();
+        let spec = format!("folder:{}@5", dir.path().display());
+        let mut camera = open(&spec, Some((640, 480))).unwrap();
+        assert!(matches!(
+            camera.next_frame(0.0),
+            Err(CameraSourceError::WrongSize {
+                expected_width: 640,
+                expected_height: 480,
+                found_width: 32,
+                found_height: 24,
+                ..
+            })
+        ));
+        let mut camera = open(&spec, None).unwrap();
+        assert!(camera.next_frame(0.0).unwrap().is_some());
+    }
+
     #[test]
     fn bad_specs_are_named() {
         let dir = tempfile::tempdir().unwrap();
@@ -266,7 +297,7 @@ mod tests {
     #[cfg(not(feature = "gstreamer"))]
     #[test]
     fn without_gstreamer_a_pipeline_says_how_to_get_it() {
-        let error = open("rtp-h264:5600").err().expect("no GStreamer here");
+        let error = open("rtp-h264:5600", None).err().expect("no GStreamer here");
         assert!(matches!(error, CameraSourceError::NoGstreamer { .. }));
         assert!(error.to_string().contains("--features gstreamer"));
     }

@@ -112,9 +112,11 @@ pub fn load_str(
 
     let mut diagnostics = Vec::new();
     let mut config = deserialize_sections(root.get_ref(), &mut diagnostics);
-    if let (Some(config), Some(base_dir)) = (config.as_mut(), base_dir) {
+    if let Some(config) = config.as_mut() {
+        let camera = config.camera.clone().unwrap_or_default();
         for task in &mut config.tasks {
-            task.config_dir = Some(base_dir.to_path_buf());
+            task.config_dir = base_dir.map(Path::to_path_buf);
+            task.camera = camera.clone();
         }
     }
     if let Some(config) = &config {

@@ -15,6 +15,8 @@ pub use load::{load_file, load_str, span_at, ConfigFailure, LoadedConfig};
 pub use plan::{LandingBy, MissionPlan};
 pub use validate::{validate, ConfigIssue, IssuePath, Issues, PathSegment, PluginRules};
 
+use algorithms::camera::{CameraError, PinholeCamera};
+use algorithms::estimation::camera_mount::CameraMount;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -46,8 +48,10 @@ pub struct MissionConfig {
     pub camera: Option<CameraSettings>,
 }
 
-/// `[camera]`: what the planner and the simulator know of the camera.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+/// `[camera]`: the one downward camera of the mission. The camera source checks its frames
+/// against it, the plugins project with it, the planner prices triggered tasks at its rate
+/// and the simulator renders it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraSettings {
     /// Frames a second the camera delivers. A task triggered by `camera/frame` runs no
@@ -56,7 +60,62 @@ pub struct CameraSettings {
     /// over.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rate_fps: Option<f64>,
+    /// Horizontal field of view, degrees.
+    #[serde(default = "default_horizontal_fov_deg")]
+    pub horizontal_fov_deg: f64,
+    /// Image size, pixels.
+    #[serde(default = "default_width_px")]
+    pub width_px: usize,
+    #[serde(default = "default_height_px")]
+    pub height_px: usize,
+    /// "body" (fixed to the body, looking along its down axis) or "gimbal" (held looking down
+    /// by a gimbal that reports its attitude: frames are projected with that).
+    #[serde(default)]
+    pub mount: CameraMount,
 }
+
+fn default_horizontal_fov_deg() -> f64 {
+    60.0
+}
+fn default_width_px() -> usize {
+    640
+}
+fn default_height_px() -> usize {
+    480
+}
+
+impl Default for CameraSettings {
+    /// A body-fixed 640×480 camera with a 60° horizontal field of view, at no declared rate.
+    fn default() -> Self {
+        Self {
+            rate_fps: None,
+            horizontal_fov_deg: default_horizontal_fov_deg(),
+            width_px: default_width_px(),
+            height_px: default_height_px(),
+            mount: CameraMount::default(),
+        }
+    }
+}
+
+impl CameraSettings {
+    /// The pinhole model the plugins project with.
+    pub fn pinhole(&self) -> Result<PinholeCamera, CameraError> {
+        PinholeCamera::from_fov(
+            self.width_px,
+            self.height_px,
+            self.horizontal_fov_deg.to_radians(),
+        )
+    }
+}
+
+/// Task params that were per-task copies of the camera before `[camera]` held it: each with
+/// the `[camera]` key that replaced it.
+pub const MOVED_CAMERA_PARAMS: [(&str, &str); 4] = [
+    ("camera_horizontal_fov_deg", "horizontal_fov_deg"),
+    ("image_width_px", "width_px"),
+    ("image_height_px", "height_px"),
+    ("camera_mount", "mount"),
+];
 
 /// The topic a camera's frames arrive on.
 pub const CAMERA_FRAME_TOPIC: &str = "camera/frame";
@@ -405,6 +464,10 @@ pub struct TaskConfig {
     /// params (a model file) against it. `None` for config text parsed without a file.
     #[serde(skip)]
     pub config_dir: Option<std::path::PathBuf>,
+    /// The mission's `[camera]` (its defaults without one), filled in at load: the plugins
+    /// that project frames read the one camera here, not params of their own.
+    #[serde(skip)]
+    pub camera: CameraSettings,
 }
 
 impl TaskConfig {

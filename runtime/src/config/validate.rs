@@ -2,7 +2,10 @@
 //! the key path of the value that breaks it, which the loader turns into a line and column.
 
 use super::suggest::did_you_mean;
-use super::{Knob, Mission, MissionConfig, PhaseKind, Resource, TaskConfig};
+use super::{
+    CameraSettings, Knob, Mission, MissionConfig, PhaseKind, Resource, TaskConfig,
+    MOVED_CAMERA_PARAMS,
+};
 use std::collections::HashSet;
 use std::fmt;
 
@@ -77,13 +80,8 @@ pub fn validate(config: &MissionConfig, plugins: &dyn PluginRules) -> Vec<Config
     check_battery(config, &root.key("battery"), &mut issues);
     check_battery_model(config, &root.key("battery"), &mut issues);
     check_flight(config, &root.key("flight"), &mut issues);
-    if let Some(rate_fps) = config.camera.as_ref().and_then(|camera| camera.rate_fps) {
-        check_positive(
-            rate_fps,
-            "the camera's rate_fps",
-            &root.key("camera").key("rate_fps"),
-            &mut issues,
-        );
+    if let Some(camera) = &config.camera {
+        check_camera(camera, &root.key("camera"), &mut issues);
     }
     check_power_model(config, &root.key("power_model"), &mut issues);
     check_tasks(config, plugins, &root.key("task"), &mut issues);
@@ -397,6 +395,47 @@ fn check_power_model(config: &MissionConfig, path: &IssuePath, issues: &mut Issu
     }
 }
 
+/// `[camera]`: a rate above 0, a field of view a pinhole camera can have, an image.
+fn check_camera(camera: &CameraSettings, path: &IssuePath, issues: &mut Issues) {
+    if let Some(rate_fps) = camera.rate_fps {
+        check_positive(
+            rate_fps,
+            "the camera's rate_fps",
+            &path.key("rate_fps"),
+            issues,
+        );
+    }
+    let fov_deg = camera.horizontal_fov_deg;
+    if !(fov_deg > 0.0 && fov_deg < 180.0) {
+        issues.push(
+            &path.key("horizontal_fov_deg"),
+            format!("the camera's horizontal_fov_deg must be within (0, 180), found {fov_deg}"),
+        );
+    }
+    for (key, value) in [("width_px", camera.width_px), ("height_px", camera.height_px)] {
+        if value == 0 {
+            issues.push(&path.key(key), format!("the camera's {key} must be at least 1"));
+        }
+    }
+}
+
+/// The camera is `[camera]`'s: a task that still describes it in its params is told where
+/// the key went.
+fn check_no_camera_params(task: &TaskConfig, path: &IssuePath, issues: &mut Issues) {
+    for (old, new) in MOVED_CAMERA_PARAMS {
+        if task.params.contains_key(old) {
+            issues.push(
+                &path.key(old),
+                format!(
+                    "the camera is described once, in [camera]: write `{new} = …` there instead \
+                     of `{old}` in task `{}`'s params",
+                    task.name
+                ),
+            );
+        }
+    }
+}
+
 fn check_tasks(
     config: &MissionConfig,
     plugins: &dyn PluginRules,
@@ -426,6 +465,7 @@ fn check_tasks(
                 format!("task `{}` is defined twice", task.name),
             );
         }
+        check_no_camera_params(task, &task_path.key("params"), issues);
         plugins.check_task(task, &task_path, issues);
         if task.resource == Resource::Gpu {
             // A GPU runs one of these networks at a time: a second claimant would stall both.

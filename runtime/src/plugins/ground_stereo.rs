@@ -255,6 +255,7 @@ fn task_config(name: &str, plugin: &str, period_ms: f64, params: toml::Table) ->
         trigger: Default::default(),
         max_idle_ms: None,
         config_dir: None,
+        camera: Default::default(),
     }
 }
 

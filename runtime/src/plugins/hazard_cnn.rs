@@ -104,12 +104,6 @@ struct Params {
     /// `libonnxruntime.so` for the CUDA backend.
     #[serde(default)]
     onnxruntime_library: Option<PathBuf>,
-    /// The downward camera, to place detections on the ground.
-    #[serde(default = "default_fov")]
-    camera_horizontal_fov_deg: f64,
-    /// As the tracker's: "body" or "gimbal" (detections placed with the gimbal's attitude).
-    #[serde(default)]
-    camera_mount: CameraMount,
     /// At most this many detections per frame are reported, most confident first.
     #[serde(default = "default_max_detections")]
     max_detections: usize,
@@ -141,9 +135,6 @@ fn default_iou() -> f64 {
 }
 fn default_format() -> OutputFormat {
     OutputFormat::Objectness
-}
-fn default_fov() -> f64 {
-    60.0
 }
 fn default_max_detections() -> usize {
     100
@@ -218,10 +209,13 @@ impl HazardCnnTask {
                 return bad(format!("{name} must be within [0, 1], got {value}"));
             }
         }
-        let fov = params.camera_horizontal_fov_deg;
+        // The mission's one camera places detections on the ground (with the gimbal's
+        // attitude where it hangs in one).
+        let camera = &build.config().camera;
+        let fov = camera.horizontal_fov_deg;
         if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
             return bad(format!(
-                "camera_horizontal_fov_deg must be within (0, 180), got {fov}"
+                "the camera's horizontal_fov_deg must be within (0, 180), got {fov}"
             ));
         }
         if !(params.min_height_m.is_finite() && params.min_height_m >= 0.0) {
@@ -277,7 +271,7 @@ impl HazardCnnTask {
             confidence_threshold: params.confidence_threshold,
             iou_threshold: params.iou_threshold,
             horizontal_fov_rad: fov.to_radians(),
-            camera_mount: params.camera_mount,
+            camera_mount: camera.mount,
             max_detections: params.max_detections,
             min_height_m: params.min_height_m,
             pad_exclusion_radius_m: params.pad_exclusion_radius_m,

@@ -18,7 +18,6 @@ use crate::topics::{
     CAMERA_FRAME, DEPTH_FRAME, HYBRID_TRACKING_STATUS, LANDING_MARKER, RELATIVE_STATE,
     VEHICLE_STATE,
 };
-use algorithms::camera::PinholeCamera;
 use algorithms::estimation::hybrid_tracking::{
     FrameInput, HybridTracker, HybridTrackingConfig, HybridTrackingConfigError, VehicleSample,
 };
@@ -39,13 +38,6 @@ const FALLBACK_LOG_EVERY: u64 = 50;
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct Params {
-    /// The (rectified) camera the detector looks through.
-    #[serde(default = "default_fov")]
-    camera_horizontal_fov_deg: f64,
-    #[serde(default = "default_width")]
-    image_width_px: usize,
-    #[serde(default = "default_height")]
-    image_height_px: usize,
     /// The pad's side: its box in the image when the detector gives no size.
     #[serde(default = "default_pad_size")]
     pad_size_m: f64,
@@ -122,15 +114,6 @@ enum AveragingParam {
     Velocity,
 }
 
-fn default_fov() -> f64 {
-    60.0
-}
-fn default_width() -> usize {
-    640
-}
-fn default_height() -> usize {
-    480
-}
 fn default_pad_size() -> f64 {
     1.0
 }
@@ -215,12 +198,12 @@ pub struct HybridTrackingTask {
 
 impl HybridTrackingTask {
     fn new(params: Params, build: &TaskBuild<'_>) -> Result<Self, TaskError> {
-        let camera = PinholeCamera::from_fov(
-            params.image_width_px,
-            params.image_height_px,
-            params.camera_horizontal_fov_deg.to_radians(),
-        )
-        .map_err(|e| TaskError::Params(format!("camera: {e}")))?;
+        // The mission's (rectified) camera the detector looks through.
+        let camera = build
+            .config()
+            .camera
+            .pinhole()
+            .map_err(|e| TaskError::Params(format!("camera: {e}")))?;
         let tracker = HybridTracker::new(HybridTrackingConfig {
             camera,
             pad_size_m: params.pad_size_m,
@@ -379,6 +362,7 @@ mod tests {
     //! where the test controls detections, the detector's observations.
 
     use super::*;
+    use algorithms::camera::PinholeCamera;
     use crate::bus::Publisher;
     use crate::catalog::{PluginInfo, Port};
     use crate::config::{Knob, Resource, TaskConfig};
@@ -601,6 +585,7 @@ mod tests {
             trigger: Default::default(),
             max_idle_ms: None,
             config_dir: None,
+            camera: Default::default(),
         }
     }
 
@@ -836,7 +821,6 @@ mod tests {
                 "homography_min_altitude_m",
             ),
             ("max_ugv_speed_m_s = 0.0", "max_ugv_speed_m_s"),
-            ("camera_horizontal_fov_deg = 0.0", "camera"),
             ("velocity_averaging = \"median\"", "speed_and_course"),
             ("altitude_windw_fraction = 0.1", "altitude_windw_fraction"),
         ] {
@@ -845,5 +829,17 @@ mod tests {
             };
             assert!(why.contains(named), "`{text}`: {why}");
         }
+        // The mission's camera, not a param of the task's, and a bad one is named.
+        let flat = crate::config::CameraSettings {
+            horizontal_fov_deg: 0.0,
+            ..Default::default()
+        };
+        let Err(TaskError::Params(why)) =
+            super::super::build_with_camera(PLUGIN_NAME, "", flat, HybridTrackingTask::new)
+        else {
+            panic!("a camera with no field of view was accepted");
+        };
+        assert!(why.contains("camera"), "{why}");
+        assert!(build("camera_horizontal_fov_deg = 60.0").is_err());
     }
 }

@@ -37,16 +37,6 @@ struct Params {
     /// …plus this angle's worth of the height (attitude noise and timing, latency, blur).
     #[serde(default = "default_fix_angle_std")]
     fix_angle_std_deg: f64,
-    #[serde(default = "default_fov")]
-    camera_horizontal_fov_deg: f64,
-    #[serde(default = "default_width")]
-    image_width_px: usize,
-    #[serde(default = "default_height")]
-    image_height_px: usize,
-    /// "body" (seed 003's camera, fixed to the body) or "gimbal" (held looking down by a
-    /// gimbal that reports its attitude: fixes are projected with that).
-    #[serde(default)]
-    camera_mount: CameraMount,
 }
 
 fn default_process_noise() -> f64 {
@@ -61,15 +51,6 @@ fn default_fix_std() -> f64 {
 /// p95 0.30 m to 0.06 / 0.17 m.
 fn default_fix_angle_std() -> f64 {
     1.7
-}
-pub(super) fn default_fov() -> f64 {
-    60.0
-}
-pub(super) fn default_width() -> usize {
-    640
-}
-pub(super) fn default_height() -> usize {
-    480
 }
 
 pub fn register(registry: &mut PluginRegistry) -> Result<(), RegistryError> {
@@ -98,12 +79,9 @@ impl TrackerTask {
         let bad = |e: &dyn std::fmt::Display| TaskError::Params(e.to_string());
         let fix_noise = FixNoise::new(params.fix_std_m, params.fix_angle_std_deg.to_radians())
             .map_err(|e| bad(&e))?;
-        let camera = PinholeCamera::from_fov(
-            params.image_width_px,
-            params.image_height_px,
-            params.camera_horizontal_fov_deg.to_radians(),
-        )
-        .map_err(|e| bad(&e))?;
+        // The mission's one camera: fixes are projected with its intrinsics and its mount.
+        let camera_settings = &build.config().camera;
+        let camera = camera_settings.pinhole().map_err(|e| bad(&e))?;
         let tracker = Tracker::new(TrackerConfig {
             process_noise_m2_per_s: params.process_noise_m2_per_s,
             // A restart needs a second of gated fixes: at 10 fps two false marker detections
@@ -118,7 +96,7 @@ impl TrackerTask {
         .map_err(|e| bad(&e))?;
         Ok(Self {
             camera,
-            camera_mount: params.camera_mount,
+            camera_mount: camera_settings.mount,
             fix_noise,
             tracker,
             platform: PlatformVelocityEstimator::new(PlatformVelocityConfig {

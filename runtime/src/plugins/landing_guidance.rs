@@ -127,16 +127,6 @@ struct Params {
     keep_in_view: bool,
     #[serde(default = "default_keep_in_view_margin")]
     keep_in_view_margin_fraction: f64,
-    /// The downward camera, as the tracker's (`kalman_tracker`) params give it.
-    #[serde(default = "super::kalman_tracker::default_fov")]
-    camera_horizontal_fov_deg: f64,
-    #[serde(default = "super::kalman_tracker::default_width")]
-    image_width_px: usize,
-    #[serde(default = "super::kalman_tracker::default_height")]
-    image_height_px: usize,
-    /// As the tracker's: a gimballed camera sees below the vehicle whatever its lean.
-    #[serde(default)]
-    camera_mount: CameraMount,
 }
 
 #[derive(Debug, Clone, Copy, Default, Deserialize, PartialEq, Eq)]
@@ -312,16 +302,15 @@ impl GuidanceTask {
                 "keep_in_view_margin_fraction = {margin} must lie in [0, 1)"
             )));
         }
-        let camera = PinholeCamera::from_fov(
-            params.image_width_px,
-            params.image_height_px,
-            params.camera_horizontal_fov_deg.to_radians(),
-        )
-        .map_err(|e| TaskError::Params(format!("the landing's camera: {e}")))?;
+        // The mission's one camera; a gimballed one sees below the vehicle whatever its lean.
+        let camera_settings = &build.config().camera;
+        let camera = camera_settings
+            .pinhole()
+            .map_err(|e| TaskError::Params(format!("the landing's camera: {e}")))?;
         Ok(Self {
             controller,
             keep_in_view: params.keep_in_view.then_some((camera, margin)),
-            camera_mount: params.camera_mount,
+            camera_mount: camera_settings.mount,
             max_fix_age_s: params.max_fix_age_s,
             max_vision_gap_s: params.max_vision_gap_s,
             setpoint_lead_s: params.setpoint_lead_s,
@@ -587,7 +576,7 @@ mod tests {
         );
     }
 
-    /// Keeping the pad in view is on by default with the tracker's camera; off, or with its own
+    /// Keeping the pad in view is on by default with the mission's camera; off, or with another
     /// camera and margin; bad values are named.
     #[test]
     fn the_keep_in_view_parameters_are_taken_and_checked() {
@@ -596,7 +585,14 @@ mod tests {
         assert_eq!((camera.width_px, camera.height_px), (640, 480));
         assert_eq!(margin, 0.3);
         assert!(task("keep_in_view = false").unwrap().keep_in_view.is_none());
-        let wide = task("camera_horizontal_fov_deg = 90.0\nkeep_in_view_margin_fraction = 0.1")
+        let wide_camera = crate::config::CameraSettings {
+            horizontal_fov_deg: 90.0,
+            ..Default::default()
+        };
+        let with_camera = |params: &str, camera: &crate::config::CameraSettings| {
+            super::super::build_with_camera(PLUGIN_NAME, params, camera.clone(), GuidanceTask::new)
+        };
+        let wide = with_camera("keep_in_view_margin_fraction = 0.1", &wide_camera)
             .unwrap()
             .keep_in_view
             .unwrap();
@@ -611,13 +607,20 @@ mod tests {
                 "keep_in_view_margin_fraction = -0.1",
                 "keep_in_view_margin_fraction",
             ),
-            ("camera_horizontal_fov_deg = 0.0", "camera"),
         ] {
             let Err(TaskError::Params(why)) = task(params) else {
                 panic!("{params} must be refused");
             };
             assert!(why.contains(name), "{params}: {why}");
         }
+        let flat = crate::config::CameraSettings {
+            horizontal_fov_deg: 0.0,
+            ..Default::default()
+        };
+        let Err(TaskError::Params(why)) = with_camera("", &flat) else {
+            panic!("a camera with no field of view must be refused");
+        };
+        assert!(why.contains("camera"), "{why}");
     }
 
     /// The MPC's model step follows the QoS period; its horizon keeps its length in seconds.

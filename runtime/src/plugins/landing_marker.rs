@@ -232,6 +232,7 @@ mod tests {
             trigger: Default::default(),
             max_idle_ms: None,
             config_dir: None,
+            camera: Default::default(),
         }
     }
 

@@ -57,6 +57,17 @@ pub(crate) fn build_from_params<P: DeserializeOwned, T>(
     text: &str,
     make: impl FnOnce(P, &TaskBuild<'_>) -> Result<T, TaskError>,
 ) -> Result<T, TaskError> {
+    build_with_camera(plugin, text, Default::default(), make)
+}
+
+/// [`build_from_params`] with the mission's `[camera]`.
+#[cfg(test)]
+pub(crate) fn build_with_camera<P: DeserializeOwned, T>(
+    plugin: &str,
+    text: &str,
+    camera: crate::config::CameraSettings,
+    make: impl FnOnce(P, &TaskBuild<'_>) -> Result<T, TaskError>,
+) -> Result<T, TaskError> {
     let config = crate::config::TaskConfig {
         name: plugin.into(),
         plugin: plugin.into(),
@@ -72,6 +83,7 @@ pub(crate) fn build_from_params<P: DeserializeOwned, T>(
         trigger: Default::default(),
         max_idle_ms: None,
         config_dir: None,
+        camera,
     };
     build_for_test(&config, &crate::bus::Bus::new(), |build| {
         make(build.parse_params()?, build)
@@ -107,6 +119,7 @@ mod tests {
         LANDING_SETPOINT, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
     };
     use algorithms::camera::{CameraPose, PinholeCamera};
+    use algorithms::estimation::camera_mount::CameraMount;
     use algorithms::control::landing::LandingMode;
     use algorithms::estimation::projection::Attitude;
     use algorithms::vision::landing_marker::LandingMarkerLayout;
@@ -224,7 +237,7 @@ mod tests {
     /// camera mounted as `body_camera` says: the tracker's estimate after 2 s, and the chain's
     /// scheduler and setpoints.
     fn run_chain(
-        mount: &str,
+        mount: CameraMount,
         body_camera: bool,
     ) -> (
         crate::scheduler::VirtualScheduler,
@@ -246,7 +259,7 @@ mod tests {
         for name in ["detection", "tracking", "landing"] {
             let mut task = config.task(name).unwrap().clone();
             if name != "detection" {
-                task.params.insert("camera_mount".into(), mount.into());
+                task.camera.mount = mount;
             }
             tasks.push(task);
         }
@@ -273,12 +286,12 @@ mod tests {
     /// attitude the camera had: the vehicle leaning 20° under its gimbal changes nothing.
     #[test]
     fn frames_become_a_relative_position_and_landing_setpoints() {
-        for (mount, body_camera) in [("gimbal", false), ("body", true)] {
+        for (mount, body_camera) in [(CameraMount::Gimbal, false), (CameraMount::Body, true)] {
             chain_finds_the_pad(mount, body_camera);
         }
     }
 
-    fn chain_finds_the_pad(mount: &str, body_camera: bool) {
+    fn chain_finds_the_pad(mount: CameraMount, body_camera: bool) {
         let (scheduler, relative, setpoint) = run_chain(mount, body_camera);
         let estimate = relative.expect("a relative state").estimate;
         // UAV − pad, NED: the vehicle is at the origin, HEIGHT_M above the pad.
@@ -307,13 +320,13 @@ mod tests {
     /// gimbal places no fix at all (and so never steers towards a wrong one).
     #[test]
     fn a_camera_mount_that_is_not_the_vehicles_is_no_good_fix() {
-        let (_, relative, _) = run_chain("body", false);
+        let (_, relative, _) = run_chain(CameraMount::Body, false);
         let estimate = relative.expect("a relative state").estimate;
         let truth = Vector3::new(-PAD_NORTH_M, -PAD_EAST_M, -HEIGHT_M);
         let error_m = (estimate.uav_relative_ned_m - truth).xy().norm();
         let lean_shift_m = HEIGHT_M * ((LEAN_RAD).tan() - ROLL_RAD.tan());
         assert!(error_m > 0.5 * lean_shift_m, "error {error_m} m");
-        let (_, relative, setpoint) = run_chain("gimbal", true);
+        let (_, relative, setpoint) = run_chain(CameraMount::Gimbal, true);
         assert!(relative.is_none(), "{relative:?}");
         assert_eq!(setpoint.map(|s| s.mode), Some(LandingMode::Search));
     }

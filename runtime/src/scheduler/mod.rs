@@ -40,7 +40,7 @@
 //! #     cores: vec![], phases: vec!["tracking".into()], weight: 1.0, knob: Knob::PeriodMs,
 //! #     levels: vec![100.0, 20.0], utility: vec![0.5, 1.0], restart: None, params: Default::default(),
 //! #     trigger: Default::default(), max_idle_ms: None,
-//! #     config_dir: None };
+//! #     config_dir: None, camera: Default::default() };
 //! let mut scheduler = SchedulerBuilder::new(&registry).task(&config).build_virtual().unwrap();
 //! scheduler.run_for(std::time::Duration::from_secs(1)).unwrap();
 //! assert_eq!(scheduler.task_stats("ping").unwrap().activations, 51); // t = 0, 20, …, 1000 ms

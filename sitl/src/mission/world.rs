@@ -2,6 +2,7 @@
 
 use super::*;
 use sim::power::{SimBattery, SimPack};
+use algorithms::estimation::camera_mount::CameraMount;
 use sim::world::Body;
 
 /// The rotors' hover power: the config's, or without one the first phase's flight power.
@@ -50,40 +51,27 @@ pub(crate) fn flight_power_w(
     }
 }
 
-/// The camera the tracker's params describe (field of view and image size: the
-/// `kalman_tracker`'s, else the `hybrid_tracking`'s), at `[camera] rate_fps`, else 10 fps like
-/// the seed's.
+/// The mission's `[camera]` as the world renders it (10 fps without a declared rate, like the
+/// seed's).
 pub(crate) fn camera_config(model: &MissionModel) -> SimCameraConfig {
-    let mut config = SimCameraConfig::default();
-    if let Some(rate_fps) = model.config.camera.as_ref().and_then(|c| c.rate_fps) {
-        config.rate_fps = rate_fps;
-    }
-    let number = |key| {
-        let config = &model.config;
-        config
-            .plugin_number("kalman_tracker", key)
-            .or_else(|| config.plugin_number("hybrid_tracking", key))
+    let camera = model.config.camera.clone().unwrap_or_default();
+    let mut config = SimCameraConfig {
+        horizontal_fov_deg: camera.horizontal_fov_deg,
+        width_px: camera.width_px,
+        height_px: camera.height_px,
+        ..SimCameraConfig::default()
     };
-    if let Some(fov) = number("camera_horizontal_fov_deg") {
-        config.horizontal_fov_deg = fov;
-    }
-    if let Some(width) = number("image_width_px") {
-        config.width_px = width as usize;
-    }
-    if let Some(height) = number("image_height_px") {
-        config.height_px = height as usize;
+    if let Some(rate_fps) = camera.rate_fps {
+        config.rate_fps = rate_fps;
     }
     config
 }
 
-/// The camera's gimbal, when the tracker's params put the camera on one
-/// (`camera_mount = "gimbal"`): the world then carries one and its autopilot reports it.
+/// The camera's gimbal, when `[camera]` puts the camera on one (`mount = "gimbal"`): the
+/// world then carries one and its autopilot reports it.
 pub(crate) fn camera_gimbal(model: &MissionModel) -> Result<Option<Gimbal>, GimbalError> {
-    let on_gimbal = model.config.tasks.iter().any(|task| {
-        matches!(task.plugin.as_str(), "kalman_tracker" | "hybrid_tracking")
-            && task.params.get("camera_mount").and_then(|v| v.as_str()) == Some("gimbal")
-    });
-    on_gimbal
+    let mount = model.config.camera.as_ref().map(|camera| camera.mount);
+    (mount == Some(CameraMount::Gimbal))
         .then(|| Gimbal::new(GimbalParams::default()))
         .transpose()
 }
@@ -170,4 +158,53 @@ pub(super) fn pad_occluders(camera: &CameraRealism, seed: u64) -> Vec<PadOcclude
         size_m: camera.occluder_size_m,
         intensity,
     }]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use runtime::catalog::PluginCatalog;
+    use runtime::config::{load_str, LoadedConfig};
+    use runtime::energy::load_mission_model;
+
+    /// The reference mission with its `[camera]` keys replaced as `edits` say.
+    fn reference_with(edits: &[(&str, &str)]) -> MissionModel {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let mut text = std::fs::read_to_string(dir.join("qos.toml")).unwrap();
+        for (from, to) in edits {
+            assert!(text.contains(from), "{from}");
+            text = text.replacen(from, to, 1);
+        }
+        let config = load_str(&text, Some(&dir), &PluginCatalog::builtin()).unwrap();
+        let loaded = LoadedConfig {
+            path: dir.join("qos.toml"),
+            source: text,
+            config,
+        };
+        load_mission_model(&loaded).unwrap()
+    }
+
+    /// The world renders the mission's one camera and hangs it where `[camera]` says: the
+    /// same values the tasks project with.
+    #[test]
+    fn the_simulated_camera_is_the_missions_camera() {
+        let model = reference_with(&[
+            ("horizontal_fov_deg = 60.0", "horizontal_fov_deg = 80.0"),
+            ("width_px = 640", "width_px = 320"),
+            ("height_px = 480", "height_px = 240"),
+            ("rate_fps = 10.0\n# The downward", "rate_fps = 4.0\n# The downward"),
+        ]);
+        let config = camera_config(&model);
+        assert_eq!((config.width_px, config.height_px), (320, 240));
+        assert_eq!((config.horizontal_fov_deg, config.rate_fps), (80.0, 4.0));
+        let tracking = model.config.task("tracking").unwrap();
+        assert_eq!(tracking.camera.width_px, 320);
+        assert!(camera_gimbal(&model).unwrap().is_some());
+        let on_body = reference_with(&[("mount = \"gimbal\"", "mount = \"body\"")]);
+        assert!(camera_gimbal(&on_body).unwrap().is_none());
+        assert_eq!(
+            on_body.config.task("landing").unwrap().camera.mount,
+            CameraMount::Body
+        );
+    }
 }

@@ -139,7 +139,7 @@ impl ServedWorld {
         if sih && gimbal.is_some() {
             // SIH streams PX4's own telemetry: no gimbal reports the camera's attitude.
             return Err(setup(
-                "PX4 SIH flies no camera gimbal: set the tracker's camera_mount = \"body\"",
+                "PX4 SIH flies no camera gimbal: set [camera] mount = \"body\"",
             ));
         }
         let video = open_video(options.video_port, width_px, height_px, rate_fps)?;

@@ -31,6 +31,7 @@ fn task_on(
         trigger: Default::default(),
         max_idle_ms: None,
         config_dir: config_dir.map(std::path::Path::to_path_buf),
+        camera: Default::default(),
     };
     super::super::build_for_test(&config, bus, |build| {
         HazardCnnTask::new(
@@ -97,7 +98,6 @@ fn bad_params_are_named() {
     assert!(message("confidence_threshold = 1.5").contains("confidence_threshold"));
     assert!(message("iou_threshold = -0.1").contains("iou_threshold"));
     assert!(message("input_width_px = 320").contains("input_height_px"));
-    assert!(message("camera_horizontal_fov_deg = 0.0").contains("camera_horizontal_fov_deg"));
     assert!(message("max_detections = 0").contains("max_detections"));
     assert!(message("min_height_m = -1.0").contains("min_height_m"));
     assert!(message("pad_exclusion_radius_m = -1.0").contains("pad_exclusion_radius_m"));

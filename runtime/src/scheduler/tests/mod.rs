@@ -158,6 +158,7 @@ fn probe(name: &str, knob: Knob, levels: &[f64], params: &str) -> TaskConfig {
         trigger: Default::default(),
         max_idle_ms: None,
         config_dir: None,
+        camera: Default::default(),
     }
 }
 
