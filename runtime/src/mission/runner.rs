@@ -23,7 +23,7 @@ use crate::link::{FailsafeAction, LinkError, LinkStatus, LinkUpdate, MavlinkLink
 use crate::record::channels::StepRecord;
 use crate::record::recorder::{BatteryEstimate, QosLevels, TaskLevelRecord};
 use crate::record::{RecordError, Recorder, RecordingSummary};
-use crate::scheduler::{PhaseGate, SchedulerError, TaskScheduler};
+use crate::scheduler::{PhaseGate, SchedulerError, TaskId, TaskScheduler};
 use crate::telemetry::MissionProgress;
 use crate::topics::{
     CameraFrame, LandingSetpoint, MissionPhase, RelativeState, VehicleState, CAMERA_FRAME,
@@ -104,6 +104,9 @@ pub struct StepReport {
 pub struct MissionRunner<S: TaskScheduler> {
     model: MissionModel,
     scheduler: S,
+    /// The scheduler's id of every config task, indexed like `config.tasks`; `None` for a task
+    /// the scheduler does not hold (its plugin is not built in).
+    task_ids: Vec<Option<TaskId>>,
     governor: Governor,
     fixed: Vec<(usize, usize)>,
     link: MavlinkLink,
@@ -154,6 +157,12 @@ impl<S: TaskScheduler> MissionRunner<S> {
             Governor::from_mission(&model, model.config.governor.clone().unwrap_or_default())
                 .map_err(RunnerError::Governor)?;
         let fixed = resolve_fixed_levels(&model, &options.fixed_levels)?;
+        let task_ids = model
+            .config
+            .tasks
+            .iter()
+            .map(|task| scheduler.task_id(&task.name))
+            .collect();
         let bus = scheduler.bus().clone();
         let mut trigger_topics: Vec<String> = model
             .config
@@ -180,6 +189,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             relative: bus.subscriber(RELATIVE_STATE)?,
             model,
             scheduler,
+            task_ids,
             governor,
             fixed,
             link,
@@ -390,6 +400,12 @@ impl<S: TaskScheduler> MissionRunner<S> {
 
     pub fn scheduler(&self) -> &S {
         &self.scheduler
+    }
+
+    /// The scheduler's id of config task `task` (an index into `config.tasks`); `None` for a
+    /// task the scheduler does not hold.
+    pub fn task_id(&self, task: usize) -> Option<TaskId> {
+        self.task_ids.get(task).copied().flatten()
     }
 
     pub fn link(&self) -> &MavlinkLink {
@@ -698,10 +714,12 @@ impl<S: TaskScheduler> MissionRunner<S> {
     /// Sets every scheduled task to the level in force: fixed, else the governor's.
     fn apply_levels(&mut self) -> Result<(), RunnerError> {
         for wanted in self.with_fixed(self.governor.current_levels()) {
-            let name = &self.model.config.tasks[wanted.task].name;
-            if let Some(current) = self.scheduler.level(name) {
+            let Some(id) = self.task_ids[wanted.task] else {
+                continue;
+            };
+            if let Some(current) = self.scheduler.level(id) {
                 if current != wanted.level {
-                    self.scheduler.set_level(name, wanted.level)?;
+                    self.scheduler.set_level(id, wanted.level)?;
                 }
             }
         }

@@ -82,8 +82,9 @@ fn a_phase_change_applies_the_new_phases_levels_within_one_step_without_battery_
             "levels in force at the start of {phase_name}"
         );
         for (name, level) in &expected {
+            let id = runner.scheduler().task_id(name).unwrap();
             assert_eq!(
-                runner.scheduler().level(name),
+                runner.scheduler().level(id),
                 Some(*level),
                 "{name} at the start of {phase_name}"
             );
@@ -91,4 +92,77 @@ fn a_phase_change_applies_the_new_phases_levels_within_one_step_without_battery_
     }
     assert_eq!(seen_phases, [0, 1, 2], "every phase started");
     assert_eq!(runner.log().battery.samples, 0, "no battery telemetry came");
+}
+
+/// A scheduler without one of the config's tasks (its plugin not built in) holds fewer tasks
+/// than the config names, so a config index is not a scheduler id: every level the runner sets
+/// reaches the task of that name, and a level for the missing task reaches none.
+#[test]
+fn levels_reach_the_named_task_when_the_scheduler_lacks_a_config_task() {
+    let reference = Path::new(env!("CARGO_MANIFEST_DIR")).join("../qos.toml");
+    let loaded = load_file(&reference, &PluginCatalog::builtin()).unwrap();
+    let model = load_mission_model(&loaded).unwrap();
+    let config = model.config.clone();
+    assert!(config.tasks.len() >= 3, "a task to skip in the middle");
+    let skipped = 1;
+    let registry = builtin_registry().unwrap();
+    let scheduler = SchedulerBuilder::new(&registry)
+        .tasks(
+            config
+                .tasks
+                .iter()
+                .enumerate()
+                .filter(|&(i, _)| i != skipped)
+                .map(|(_, task)| task),
+        )
+        .build_virtual()
+        .unwrap();
+    // Every task (the skipped one too) held one below its highest level, where it starts.
+    let fixed_level = |task: &crate::config::TaskConfig| task.levels.len() - 2;
+    let fixed_levels = config
+        .tasks
+        .iter()
+        .map(|task| (task.name.clone(), task.levels[fixed_level(task)]))
+        .collect();
+    let link = MavlinkLink::bind_local_ephemeral(LinkConfig::default()).unwrap();
+    let mut plan = MissionPlan::for_mission(&config);
+    plan.control = false;
+    let options = RunnerOptions {
+        fixed_levels,
+        ..RunnerOptions::default()
+    };
+    let mut runner = MissionRunner::new(model, scheduler, link, plan, None, options).unwrap();
+    assert_eq!(runner.task_id(skipped), None);
+    for (index, task) in config.tasks.iter().enumerate().skip(skipped + 1) {
+        let id = runner.task_id(index).unwrap();
+        assert_eq!(
+            id.index(),
+            index - 1,
+            "{} after the skipped task",
+            task.name
+        );
+        assert_eq!(runner.scheduler().task_id(&task.name), Some(id));
+    }
+
+    // The first step applies the levels in force, before the scheduler starts.
+    runner.step(0.0, None).unwrap();
+    let levels: Vec<(String, usize)> = runner
+        .scheduler()
+        .stats()
+        .into_iter()
+        .map(|stats| (stats.name, stats.level))
+        .collect();
+    let expected: Vec<(String, usize)> = config
+        .tasks
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != skipped)
+        .map(|(_, task)| (task.name.clone(), fixed_level(task)))
+        .collect();
+    assert_eq!(levels, expected);
+    for (index, task) in config.tasks.iter().enumerate() {
+        if let Some(id) = runner.task_id(index) {
+            assert_eq!(runner.scheduler().level(id), Some(fixed_level(task)));
+        }
+    }
 }

@@ -11,7 +11,9 @@ use crate::config::MissionConfig;
 use crate::dry_run::{hovering_vehicle, synthetic_frames, FRAME_PERIOD};
 use crate::power_meter::{MeterError, PowerMeter, PowerReading};
 use crate::registry::PluginRegistry;
-use crate::scheduler::{RealTimeOptions, RealTimeScheduler, SchedulerBuilder, SchedulerError};
+use crate::scheduler::{
+    RealTimeOptions, RealTimeScheduler, SchedulerBuilder, SchedulerError, TaskId,
+};
 use crate::task::TaskHealth;
 use crate::topics::{CameraFrame, VehicleState, CAMERA_FRAME, VEHICLE_STATE};
 use power_models::profile::{ChannelStats, Profile, Sample};

@@ -238,6 +238,26 @@ pub(super) fn measure(
     Ok(measurement)
 }
 
+/// The scheduler's id of config task `task`, or an error naming the tasks it holds.
+fn task_id(
+    scheduler: &RealTimeScheduler,
+    config: &MissionConfig,
+    task: usize,
+) -> Result<TaskId, SchedulerError> {
+    let name = &config.tasks[task].name;
+    scheduler
+        .task_id(name)
+        .ok_or_else(|| SchedulerError::UnknownTask {
+            task: name.clone(),
+            known: scheduler
+                .stats()
+                .into_iter()
+                .map(|stats| stats.name)
+                .collect::<Vec<_>>()
+                .join(", "),
+        })
+}
+
 /// Runs the plan: the idle baseline first, then every combination, on `meter`.
 pub fn run_sweep(
     config: &MissionConfig,
@@ -281,7 +301,8 @@ pub fn run_sweep(
         .map_err(SweepError::Inputs)?;
     scheduler.start()?;
     for knob in &plan.held {
-        scheduler.set_level(&config.tasks[knob.task].name, knob.levels[0])?;
+        let id = task_id(&scheduler, config, knob.task)?;
+        scheduler.set_level(id, knob.levels[0])?;
     }
     let mut inputs = SyntheticInputs {
         scheduler: &scheduler,
@@ -299,7 +320,8 @@ pub fn run_sweep(
         let label = plan.label(combination);
         observer.step_started(n + 1, steps, &label);
         for (axis, &i) in plan.axes.iter().zip(combination) {
-            scheduler.set_level(&config.tasks[axis.task].name, axis.levels[i])?;
+            let id = task_id(&scheduler, config, axis.task)?;
+            scheduler.set_level(id, axis.levels[i])?;
         }
         inputs.next = Duration::ZERO;
         let measurement = measure(meter, options, &label, &mut inputs, observer, &mut warnings)?;

@@ -103,6 +103,9 @@ pub enum SchedulerError {
     },
     #[error("no task named `{task}`; the tasks are: {known}")]
     UnknownTask { task: String, known: String },
+    /// A [`TaskId`] this scheduler did not hand out (one of another scheduler's).
+    #[error("no task with id {id} in this scheduler (an id of another scheduler?); the tasks are: {known}")]
+    UnknownTaskId { id: TaskId, known: String },
     #[error("task `{task}` is defined twice")]
     DuplicateTask { task: String },
     // The cores appear twice, as they always have.
@@ -131,6 +134,27 @@ pub enum SchedulerError {
     AlreadyStarted,
     #[error("the scheduler was stopped; build a new one")]
     Stopped,
+}
+
+/// A scheduler's handle on one of its tasks: its place in the order the tasks were added to
+/// the [`SchedulerBuilder`] (which is not a task's place in a mission config when the config has
+/// tasks the scheduler does not hold). Get it once by name with [`TaskScheduler::task_id`]
+/// (or the schedulers' own `task_id`), then change and read the task's level, and ask when it
+/// next runs, without looking its name up again. Only meaningful to the scheduler that gave it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct TaskId(usize);
+
+impl TaskId {
+    /// The task's place among the scheduler's tasks (the order of [`TaskScheduler::stats`]).
+    pub fn index(self) -> usize {
+        self.0
+    }
+}
+
+impl std::fmt::Display for TaskId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "#{}", self.0)
+    }
 }
 
 /// Per-task settings beyond the config.

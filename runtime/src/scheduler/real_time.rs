@@ -8,7 +8,7 @@
 //! sources) belongs on tokio, outside these workers.
 
 use super::stats::StatsAccum;
-use super::{lock, Parts, PhaseGate, Resources, SchedulerError, TaskRunner, TaskStats};
+use super::{lock, Parts, PhaseGate, Resources, SchedulerError, TaskId, TaskRunner, TaskStats};
 use crate::bus::Bus;
 use crate::clock::{Clock, Timestamp, WallClock};
 use crate::config::Resource;
@@ -207,11 +207,11 @@ impl RealTimeScheduler {
 
     /// Changes `task`'s QoS level; its worker applies it at once (it is woken), and the next
     /// activation is re-computed from the new period: within one new period from now.
-    pub fn set_level(&self, task: &str, level: usize) -> Result<(), SchedulerError> {
-        let worker = self.worker(task)?;
+    pub fn set_level(&self, task: TaskId, level: usize) -> Result<(), SchedulerError> {
+        let worker = self.worker_of_id(task)?;
         if level >= worker.level_count {
             return Err(LevelError::OutOfRange {
-                task: task.to_string(),
+                task: worker.name.clone(),
                 level,
                 count: worker.level_count,
             }
@@ -240,10 +240,18 @@ impl RealTimeScheduler {
         }
     }
 
-    /// The level the task's worker runs at.
-    pub fn level(&self, task: &str) -> Option<usize> {
-        let worker = self.worker(task).ok()?;
+    /// The level the task's worker runs at; `None` for an id this scheduler did not give.
+    pub fn level(&self, task: TaskId) -> Option<usize> {
+        let worker = self.worker_of_id(task).ok()?;
         Some(lock(&worker.stats).level)
+    }
+
+    /// The id of the task named `task`, if the scheduler holds it.
+    pub fn task_id(&self, task: &str) -> Option<TaskId> {
+        self.workers
+            .iter()
+            .position(|worker| worker.name == task)
+            .map(TaskId)
     }
 
     fn worker(&self, task: &str) -> Result<&Worker, SchedulerError> {
@@ -252,13 +260,26 @@ impl RealTimeScheduler {
             .find(|worker| worker.name == task)
             .ok_or_else(|| SchedulerError::UnknownTask {
                 task: task.to_string(),
-                known: self
-                    .workers
-                    .iter()
-                    .map(|worker| worker.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", "),
+                known: self.known_tasks(),
             })
+    }
+
+    fn worker_of_id(&self, task: TaskId) -> Result<&Worker, SchedulerError> {
+        self.workers
+            .get(task.0)
+            .ok_or_else(|| SchedulerError::UnknownTaskId {
+                id: task,
+                known: self.known_tasks(),
+            })
+    }
+
+    /// The tasks' names, for an error.
+    fn known_tasks(&self) -> String {
+        self.workers
+            .iter()
+            .map(|worker| worker.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 
     pub fn now(&self) -> Timestamp {

@@ -11,11 +11,17 @@ pub trait TaskScheduler {
     /// Virtual time: runs every activation due up to `now`. Real time: the workers run by
     /// themselves, so nothing.
     fn run_until(&mut self, now: Timestamp) -> Result<(), SchedulerError>;
-    fn level(&self, task: &str) -> Option<usize>;
-    fn set_level(&mut self, task: &str, level: usize) -> Result<(), SchedulerError>;
+    /// The id of the task named `task`, if the scheduler holds it: the one place a task is
+    /// looked up by name (a mission config may name tasks the scheduler was not given).
+    fn task_id(&self, task: &str) -> Option<TaskId>;
+    /// `task`'s QoS level; `None` for an id this scheduler did not give.
+    fn level(&self, task: TaskId) -> Option<usize>;
+    /// Changes `task`'s QoS level; [`SchedulerError::UnknownTaskId`] for an id this scheduler
+    /// did not give.
+    fn set_level(&mut self, task: TaskId, level: usize) -> Result<(), SchedulerError>;
     fn set_phase(&mut self, gate: &PhaseGate);
     /// When `task` next steps, where the scheduler knows ahead (virtual time).
-    fn next_activation(&self, task: &str) -> Option<Timestamp>;
+    fn next_activation(&self, task: TaskId) -> Option<Timestamp>;
     fn stats(&self) -> Vec<TaskStats>;
     fn failed_tasks(&self) -> Vec<String>;
     fn stop(&mut self);
@@ -34,16 +40,19 @@ impl TaskScheduler for VirtualScheduler {
     fn run_until(&mut self, now: Timestamp) -> Result<(), SchedulerError> {
         VirtualScheduler::run_until(self, now).map(|_| ())
     }
-    fn level(&self, task: &str) -> Option<usize> {
+    fn task_id(&self, task: &str) -> Option<TaskId> {
+        VirtualScheduler::task_id(self, task)
+    }
+    fn level(&self, task: TaskId) -> Option<usize> {
         VirtualScheduler::level(self, task)
     }
-    fn set_level(&mut self, task: &str, level: usize) -> Result<(), SchedulerError> {
+    fn set_level(&mut self, task: TaskId, level: usize) -> Result<(), SchedulerError> {
         VirtualScheduler::set_level(self, task, level)
     }
     fn set_phase(&mut self, gate: &PhaseGate) {
         VirtualScheduler::set_phase(self, gate)
     }
-    fn next_activation(&self, task: &str) -> Option<Timestamp> {
+    fn next_activation(&self, task: TaskId) -> Option<Timestamp> {
         VirtualScheduler::next_activation(self, task)
     }
     fn stats(&self) -> Vec<TaskStats> {
@@ -70,16 +79,19 @@ impl TaskScheduler for RealTimeScheduler {
     fn run_until(&mut self, _now: Timestamp) -> Result<(), SchedulerError> {
         Ok(())
     }
-    fn level(&self, task: &str) -> Option<usize> {
+    fn task_id(&self, task: &str) -> Option<TaskId> {
+        RealTimeScheduler::task_id(self, task)
+    }
+    fn level(&self, task: TaskId) -> Option<usize> {
         RealTimeScheduler::level(self, task)
     }
-    fn set_level(&mut self, task: &str, level: usize) -> Result<(), SchedulerError> {
+    fn set_level(&mut self, task: TaskId, level: usize) -> Result<(), SchedulerError> {
         RealTimeScheduler::set_level(self, task, level)
     }
     fn set_phase(&mut self, gate: &PhaseGate) {
         RealTimeScheduler::set_phase(self, gate)
     }
-    fn next_activation(&self, _task: &str) -> Option<Timestamp> {
+    fn next_activation(&self, _task: TaskId) -> Option<Timestamp> {
         None
     }
     fn stats(&self) -> Vec<TaskStats> {
@@ -107,16 +119,19 @@ impl TaskScheduler for Box<dyn TaskScheduler> {
     fn run_until(&mut self, now: Timestamp) -> Result<(), SchedulerError> {
         (**self).run_until(now)
     }
-    fn level(&self, task: &str) -> Option<usize> {
+    fn task_id(&self, task: &str) -> Option<TaskId> {
+        (**self).task_id(task)
+    }
+    fn level(&self, task: TaskId) -> Option<usize> {
         (**self).level(task)
     }
-    fn set_level(&mut self, task: &str, level: usize) -> Result<(), SchedulerError> {
+    fn set_level(&mut self, task: TaskId, level: usize) -> Result<(), SchedulerError> {
         (**self).set_level(task, level)
     }
     fn set_phase(&mut self, gate: &PhaseGate) {
         (**self).set_phase(gate)
     }
-    fn next_activation(&self, task: &str) -> Option<Timestamp> {
+    fn next_activation(&self, task: TaskId) -> Option<Timestamp> {
         (**self).next_activation(task)
     }
     fn stats(&self) -> Vec<TaskStats> {

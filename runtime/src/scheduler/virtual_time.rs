@@ -7,7 +7,9 @@
 //! that fall inside that cost are skipped exactly as in real time. Nothing depends on the host's
 //! speed, so the same config and seed replay the same trace.
 
-use super::{ActivationReport, Parts, PhaseGate, Resources, SchedulerError, TaskRunner, TaskStats};
+use super::{
+    ActivationReport, Parts, PhaseGate, Resources, SchedulerError, TaskId, TaskRunner, TaskStats,
+};
 use crate::bus::Bus;
 use crate::clock::{Clock, ClockError, Timestamp, VirtualClock};
 use crate::task::MissionHealth;
@@ -266,12 +268,12 @@ impl VirtualScheduler {
 
     /// Changes `task`'s QoS level now; its next activation is re-computed from the new period
     /// (at most one new period from now).
-    pub fn set_level(&mut self, task: &str, level: usize) -> Result<(), SchedulerError> {
-        let index = self.index_of(task)?;
+    pub fn set_level(&mut self, task: TaskId, level: usize) -> Result<(), SchedulerError> {
+        let index = self.index_of_id(task)?;
         let runner = &mut self.runners[index];
         if level >= runner.level_count() {
             return Err(crate::task::LevelError::OutOfRange {
-                task: task.to_string(),
+                task: runner.name().to_string(),
                 level,
                 count: runner.level_count(),
             }
@@ -329,8 +331,26 @@ impl VirtualScheduler {
             })
     }
 
-    pub fn level(&self, task: &str) -> Option<usize> {
-        let index = self.index_of(task).ok()?;
+    /// The id of the task named `task`, if the scheduler holds it.
+    pub fn task_id(&self, task: &str) -> Option<TaskId> {
+        self.index_of(task).ok().map(TaskId)
+    }
+
+    /// `task`'s index among the runners, or an error naming the tasks there are.
+    fn index_of_id(&self, task: TaskId) -> Result<usize, SchedulerError> {
+        if task.0 < self.runners.len() {
+            Ok(task.0)
+        } else {
+            Err(SchedulerError::UnknownTaskId {
+                id: task,
+                known: self.names.join(", "),
+            })
+        }
+    }
+
+    /// `task`'s QoS level; `None` for an id this scheduler did not give.
+    pub fn level(&self, task: TaskId) -> Option<usize> {
+        let index = self.index_of_id(task).ok()?;
         Some(self.runners[index].level())
     }
 
@@ -341,8 +361,8 @@ impl VirtualScheduler {
     /// When `task` next takes an input, if it still runs: a periodic task at its next
     /// activation, an input-triggered one as soon as an input arriving now could run it (a
     /// simulator renders a camera frame only when a consumer will look at it).
-    pub fn next_activation(&self, task: &str) -> Option<Timestamp> {
-        let runner = &self.runners[self.index_of(task).ok()?];
+    pub fn next_activation(&self, task: TaskId) -> Option<Timestamp> {
+        let runner = &self.runners[self.index_of_id(task).ok()?];
         (self.started && runner.is_scheduled()).then(|| runner.next_input_take(self.clock.now()))
     }
 

@@ -160,7 +160,8 @@ impl CameraFeed {
         self.every_frame
             || self.consumers.iter().any(|name| {
                 scheduler
-                    .next_activation(name)
+                    .task_id(name)
+                    .and_then(|id| scheduler.next_activation(id))
                     .is_some_and(|next| next.as_secs_f64() < horizon_s)
             })
     }

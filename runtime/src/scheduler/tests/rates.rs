@@ -15,13 +15,14 @@ fn virtual_rate_change_takes_effect_within_one_period() {
         },
     );
     let mut scheduler = builder.build_virtual().unwrap();
+    let tracking = scheduler.task_id("tracking").unwrap();
     scheduler.run_until(Timestamp::from_millis(1_050)).unwrap();
     assert_eq!(
         times_of(&probes.log, "tracking"),
         (0..=10).map(|k| k * 100 * MS).collect::<Vec<_>>()
     );
     // Faster: the last activation was at 1000 ms, 1000 + 20 is past, so it runs now.
-    scheduler.set_level("tracking", 1).unwrap();
+    scheduler.set_level(tracking, 1).unwrap();
     scheduler.run_until(Timestamp::from_millis(1_200)).unwrap();
     let after: Vec<u64> = times_of(&probes.log, "tracking")
         .into_iter()
@@ -33,7 +34,7 @@ fn virtual_rate_change_takes_effect_within_one_period() {
     );
     assert!(probes.log.lock().unwrap().last().unwrap().level == 1);
     // Slower: the last activation was at 1190 ms; the next is 1190 + 100, within 100 ms of now.
-    scheduler.set_level("tracking", 0).unwrap();
+    scheduler.set_level(tracking, 0).unwrap();
     scheduler.run_until(Timestamp::from_millis(1_500)).unwrap();
     let after: Vec<u64> = times_of(&probes.log, "tracking")
         .into_iter()
@@ -58,12 +59,13 @@ fn real_time_rate_change_takes_effect_within_one_period() {
         },
     );
     let mut scheduler = builder.build_real_time(unpinned()).unwrap();
+    let tracking = scheduler.task_id("tracking").unwrap();
     scheduler.start().unwrap();
     std::thread::sleep(Duration::from_millis(60));
     // One activation at start; at 300 ms the next would be 240 ms away.
     assert_eq!(times_of(&probes.log, "tracking").len(), 1);
     let changed_at = scheduler.now();
-    scheduler.set_level("tracking", 1).unwrap();
+    scheduler.set_level(tracking, 1).unwrap();
     std::thread::sleep(Duration::from_millis(150));
     scheduler.stop();
     let times = times_of(&probes.log, "tracking");
@@ -79,5 +81,5 @@ fn real_time_rate_change_takes_effect_within_one_period() {
         (8..=17).contains(&after),
         "{after} activations in 150 ms at 10 ms"
     );
-    assert_eq!(scheduler.level("tracking"), Some(1));
+    assert_eq!(scheduler.level(tracking), Some(1));
 }

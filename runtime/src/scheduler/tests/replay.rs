@@ -157,8 +157,10 @@ fn replay(seed: u64) -> Replay {
     builder.tasks(&config.tasks).seed(seed).record_trace(true);
     let mut scheduler = builder.build_virtual().unwrap();
     scheduler.run_until(Timestamp::from_millis(7_000)).unwrap();
-    scheduler.set_level("tracking", 0).unwrap();
-    scheduler.set_level("hazard", 1).unwrap();
+    let tracking = scheduler.task_id("tracking").unwrap();
+    let hazard = scheduler.task_id("hazard").unwrap();
+    scheduler.set_level(tracking, 0).unwrap();
+    scheduler.set_level(hazard, 1).unwrap();
     scheduler.run_until(Timestamp::from_millis(20_000)).unwrap();
     let stats = scheduler.stats();
     let topics = scheduler.bus().topics();

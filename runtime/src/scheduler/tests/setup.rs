@@ -10,18 +10,32 @@ fn mistakes_are_named_errors() {
         .task(&config)
         .build_virtual()
         .unwrap();
+    assert_eq!(scheduler.task_id("trackin"), None);
+    let tracking = scheduler.task_id("tracking").unwrap();
     assert!(matches!(
-        scheduler.set_level("trackin", 0),
-        Err(SchedulerError::UnknownTask { task, known }) if task == "trackin" && known == "tracking"
-    ));
-    assert!(matches!(
-        scheduler.set_level("tracking", 2),
+        scheduler.set_level(tracking, 2),
         Err(SchedulerError::Level(LevelError::OutOfRange {
+            task,
             level: 2,
             count: 2,
-            ..
-        }))
+        })) if task == "tracking"
     ));
+    // An id of another scheduler, past this one's tasks, is named as such.
+    let other = probe("landing", Knob::PeriodMs, &[100.0, 20.0], "");
+    let foreign = SchedulerBuilder::new(&probes.registry)
+        .tasks([&other, &config])
+        .build_virtual()
+        .unwrap()
+        .task_id("tracking")
+        .unwrap();
+    let error = scheduler.set_level(foreign, 0).unwrap_err();
+    assert!(
+        matches!(&error, SchedulerError::UnknownTaskId { id, known } if *id == foreign && known == "tracking"),
+        "{error:?}"
+    );
+    assert!(error.to_string().contains("no task with id #1"), "{error}");
+    assert_eq!(scheduler.level(foreign), None);
+    assert_eq!(scheduler.next_activation(foreign), None);
     assert!(matches!(
         scheduler.run_until(Timestamp::from_millis(10)),
         Ok(1)

@@ -262,7 +262,8 @@ fn a_level_change_while_an_input_waits_runs_it_now_not_in_the_past() {
     }
     scheduler.run_until(Timestamp::from_millis(600)).unwrap();
     // At 4 fps it would have been due at 250 ms, already past: it runs now.
-    scheduler.set_level("detect", 1).unwrap();
+    let detect = scheduler.task_id("detect").unwrap();
+    scheduler.set_level(detect, 1).unwrap();
     scheduler.run_until(Timestamp::from_millis(3_000)).unwrap();
     assert_eq!(
         runs_of(&log, "detect"),
