@@ -489,30 +489,7 @@ impl HybridTracker {
             return Ok(report);
         };
         self.status.frames += 1;
-        let altitude_m =
-            match self.depth_altitude_m(frame.frame_index, frame.depth, time_s, &state.attitude) {
-                Ok(altitude_m) => {
-                    self.status.depth_altitudes += 1;
-                    self.status.altitude_from_depth = true;
-                    altitude_m
-                }
-                Err(fallback) => {
-                    self.status.depth_fallbacks += 1;
-                    self.status.altitude_from_depth = false;
-                    // On the ground, in the take-off and in the last of the landing the stereo
-                    // camera is too near to measure: expected.
-                    let near = |height_m: f64| height_m < 1.5 * self.window.min_depth_m;
-                    report.fallback_airborne = !state.landed
-                        && !near(state.height_above_pad_m)
-                        && !self
-                            .altitude_filter
-                            .estimate()
-                            .is_some_and(|e| near(e.altitude_m) && time_s - e.time_s < 2.0);
-                    self.status.last_depth_error = Some(fallback.to_string());
-                    report.altitude_fallback = Some(fallback);
-                    state.height_above_pad_m
-                }
-            };
+        let altitude_m = self.frame_altitude_m(frame, &state, &mut report);
         self.status.altitude_m = Some(altitude_m);
         if !(altitude_m.is_finite() && altitude_m > 0.0) {
             // Nothing to scale pixels with (on the ground, or bad telemetry): skip the frame.
@@ -554,36 +531,11 @@ impl HybridTracker {
         // track's prediction keeps the association.
         let detection = matched.and_then(|index| detections.get(index));
         let detected_px = detection.map(|d| d.centre_px);
-        match detected_px {
-            Some((u, v)) => {
-                self.status.detections += 1;
-                self.last_fix_time_s = Some(time_s);
-                if let Ok(pad_relative) =
-                    pad_relative_to_uav_ned_m(&self.camera, &state.attitude, altitude_m, u, v)
-                {
-                    self.fix = Some(Fix {
-                        time_s,
-                        uav_relative_ned_m: -pad_relative,
-                        horizontal_std_m: self.measurement_std_px * altitude_m / self.camera.fx_px,
-                        vertical_std_m: self.altitude_filter_config.measurement_std_m,
-                    });
-                }
-            }
-            None => self.status.bridged += 1,
-        }
+        self.record_fix(time_s, detected_px, &state.attitude, altitude_m);
         // The platform's motion between this frame and the previous one, when the target was
         // detected in both: from high enough up by the seed's motion compensation (the
         // homography of the ground between the frames), lower down by the UAV's own motion.
-        let homography_altitude = altitude_m >= self.homography_min_altitude_m;
-        let features = frame
-            .image
-            .zip(detection)
-            .filter(|_| homography_altitude)
-            .map(|(image, d)| {
-                let mut features = self.matcher.features(&image.view());
-                mask_out(&mut features, &d.bbox, 1.2);
-                features
-            });
+        let features = self.ground_features(frame, detection, altitude_m);
         let previous = self.previous.take();
         let instant = match (&previous, detected_px, self.fix) {
             (Some(p), Some(current_px), Some(fix)) if p.target_px.is_some() => {
@@ -617,19 +569,7 @@ impl HybridTracker {
             _ => None,
         };
         if let Some(instant) = instant {
-            if instant.speed_m_s > self.max_ugv_speed_m_s {
-                self.status.velocity_rejected += 1;
-            } else if let Ok(velocity) =
-                self.observer
-                    .update(time_s, &instant, state.attitude.yaw_rad)
-            {
-                self.status.velocity_samples += 1;
-                self.platform_velocity_ned_m_s = Some(Vector3::new(
-                    velocity.velocity_ned_m_s.x,
-                    velocity.velocity_ned_m_s.y,
-                    0.0,
-                ));
-            }
+            self.observe_platform_motion(time_s, &instant, state.attitude.yaw_rad);
         }
         self.previous = Some(PreviousFrame {
             time_s,
@@ -638,6 +578,105 @@ impl HybridTracker {
             uav_relative_ned_m: detected_px.and(self.fix.map(|f| f.uav_relative_ned_m)),
         });
         Ok(report)
+    }
+
+    /// The frame's altitude above the pad: from its depth image, else the autopilot's height,
+    /// with why (and whether the UAV was airborne then) in `report` and the status counted.
+    fn frame_altitude_m(
+        &mut self,
+        frame: &FrameInput<'_>,
+        state: &VehicleSample,
+        report: &mut FrameReport,
+    ) -> f64 {
+        let time_s = frame.time_s;
+        match self.depth_altitude_m(frame.frame_index, frame.depth, time_s, &state.attitude) {
+            Ok(altitude_m) => {
+                self.status.depth_altitudes += 1;
+                self.status.altitude_from_depth = true;
+                altitude_m
+            }
+            Err(fallback) => {
+                self.status.depth_fallbacks += 1;
+                self.status.altitude_from_depth = false;
+                // On the ground, in the take-off and in the last of the landing the stereo
+                // camera is too near to measure: expected.
+                let near = |height_m: f64| height_m < 1.5 * self.window.min_depth_m;
+                report.fallback_airborne = !state.landed
+                    && !near(state.height_above_pad_m)
+                    && !self
+                        .altitude_filter
+                        .estimate()
+                        .is_some_and(|e| near(e.altitude_m) && time_s - e.time_s < 2.0);
+                self.status.last_depth_error = Some(fallback.to_string());
+                report.altitude_fallback = Some(fallback);
+                state.height_above_pad_m
+            }
+        }
+    }
+
+    /// A detection of the target at `detected_px` becomes the fix (its relative position at
+    /// `time_s`, when the pixel projects onto the pad's plane); a frame without one is counted
+    /// as bridged.
+    fn record_fix(
+        &mut self,
+        time_s: f64,
+        detected_px: Option<(f64, f64)>,
+        attitude: &Attitude,
+        altitude_m: f64,
+    ) {
+        match detected_px {
+            Some((u, v)) => {
+                self.status.detections += 1;
+                self.last_fix_time_s = Some(time_s);
+                if let Ok(pad_relative) =
+                    pad_relative_to_uav_ned_m(&self.camera, attitude, altitude_m, u, v)
+                {
+                    self.fix = Some(Fix {
+                        time_s,
+                        uav_relative_ned_m: -pad_relative,
+                        horizontal_std_m: self.measurement_std_px * altitude_m / self.camera.fx_px,
+                        vertical_std_m: self.altitude_filter_config.measurement_std_m,
+                    });
+                }
+            }
+            None => self.status.bridged += 1,
+        }
+    }
+
+    /// The frame's features of the ground for the motion compensation, those on the target's
+    /// `detection` masked out; `None` without an image or a detection, or below
+    /// `homography_min_altitude_m`.
+    fn ground_features(
+        &self,
+        frame: &FrameInput<'_>,
+        detection: Option<&Detection>,
+        altitude_m: f64,
+    ) -> Option<FrameFeatures> {
+        let homography_altitude = altitude_m >= self.homography_min_altitude_m;
+        frame
+            .image
+            .zip(detection)
+            .filter(|_| homography_altitude)
+            .map(|(image, d)| {
+                let mut features = self.matcher.features(&image.view());
+                mask_out(&mut features, &d.bbox, 1.2);
+                features
+            })
+    }
+
+    /// Feeds the platform's instantaneous motion to the velocity observer, unless it is faster
+    /// than the UGV can drive (a bad match).
+    fn observe_platform_motion(&mut self, time_s: f64, instant: &InstantMotion, yaw_rad: f64) {
+        if instant.speed_m_s > self.max_ugv_speed_m_s {
+            self.status.velocity_rejected += 1;
+        } else if let Ok(velocity) = self.observer.update(time_s, instant, yaw_rad) {
+            self.status.velocity_samples += 1;
+            self.platform_velocity_ned_m_s = Some(Vector3::new(
+                velocity.velocity_ned_m_s.x,
+                velocity.velocity_ned_m_s.y,
+                0.0,
+            ));
+        }
     }
 
     /// Equations 7–10 and 15–17: the homography of the ground from the previous frame's

@@ -15,7 +15,7 @@
 //! - Textures return intensity in [0, 1]: 0 black, 1 white. The image stores intensity × 255.
 //! - Patches are drawn in order: where two lie on the same plane, the later one covers the earlier.
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Matrix3, Point3, Vector3};
 use thiserror::Error;
 
 use super::image::{DepthImage, FrameError, GrayImage};
@@ -171,46 +171,12 @@ fn render_rows_here(rows: RenderRows<'_>) -> Result<(), RenderError> {
         out,
     } = rows;
     let ss = supersampling;
-    if !(1..=16).contains(&ss) {
-        return Err(RenderError::Supersampling(ss));
-    }
-    // The camera's fields are public, so its size is checked here too.
-    let (width, height) = (camera.width_px, camera.height_px);
-    if width == 0 || height == 0 {
-        return Err(FrameError::Empty { width, height }.into());
-    }
-    let rows = out.len() / width;
-    if !out.len().is_multiple_of(width) || first_row + rows > height {
-        return Err(RenderError::RowBuffer {
-            width,
-            height,
-            first_row,
-            len: out.len(),
-        });
-    }
+    check_row_buffer(camera, ss, first_row, out.len())?;
+    let width = camera.width_px;
     let prepared = prepare_patches(pose, scene)?;
 
     let rotation = pose.camera_to_world.rotation.to_rotation_matrix();
-    let r = rotation.matrix();
-    let origin = pose.position_ned_m();
-    let undistorted = camera.distortion.is_zero();
-    let inv_samples = 1.0 / (ss * ss) as f32;
-    let offsets: Vec<f64> = (0..ss)
-        .map(|i| (i as f64 + 0.5) / ss as f64 - 0.5)
-        .collect();
-
-    // A sample sees a patch's texture or the sky (`Ok`), or the ground at world (north, east) (`Err`).
-    let shade = |candidates: &[&PreparedPatch<'_>],
-                 x: f64,
-                 y: f64,
-                 ray: Vector3<f64>|
-     -> Result<f32, (f64, f64)> {
-        match nearest_hit(candidates, x, y, &ray, &origin, scene.ground_down_m) {
-            Hit::Patch { patch, u, v, .. } => Ok(patch.texture.sample(u, v)),
-            Hit::Ground { t } => Err((origin.x + ray.x * t, origin.y + ray.y * t)),
-            Hit::Nothing => Ok(scene.sky),
-        }
-    };
+    let frame = FrameRays::new(camera, scene, rotation.matrix(), pose.position_ned_m(), ss);
 
     let mut candidates: Vec<&PreparedPatch<'_>> = Vec::with_capacity(prepared.len());
     // The row's columns as runs that may meet one of its patches or may not: without
@@ -218,104 +184,31 @@ fn render_rows_here(rows: RenderRows<'_>) -> Result<(), RenderError> {
     // would all fail; with it, one run that may.
     let mut patch_spans: Vec<(usize, usize)> = Vec::new();
     let mut runs: Vec<(std::ops::Range<usize>, bool)> = Vec::new();
-    let ground_height_m = scene.ground_down_m - origin.z;
-    // The fast path's row buffers, and each column's normalised x (the same in every row).
+    // The fast path's row buffers.
     let mut ground_points = vec![[0f64; 2]; width];
     let mut ground_values = vec![0f32; width];
-    let column_x: Vec<f64> = (0..width)
-        .map(|col| (col as f64 - camera.cx_px) / camera.fx_px)
-        .collect();
     for (chunk_row, row_out) in out.chunks_exact_mut(width).enumerate() {
         let row = first_row + chunk_row;
         // Without distortion a row's samples share their normalised y: only the patches that
         // span it need testing in this row.
         candidates.clear();
-        let (row_y0, row_y1) = (
-            (row as f64 + offsets[0] - camera.cy_px) / camera.fy_px,
-            (row as f64 + offsets[ss - 1] - camera.cy_px) / camera.fy_px,
-        );
+        let (row_y0, row_y1) = frame.row_y_span(row);
         candidates.extend(
             prepared
                 .iter()
-                .filter(|p| !undistorted || (p.bounds[2] <= row_y1 && p.bounds[3] >= row_y0)),
+                .filter(|p| !frame.undistorted || (p.bounds[2] <= row_y1 && p.bounds[3] >= row_y0)),
         );
         runs.clear();
-        if undistorted {
-            patch_spans.clear();
-            for p in &candidates {
-                // Columns whose first or last sample's x can fall within the patch's bounds
-                // (an infinite bound saturates the conversion to the image's edge).
-                // With one sample per pixel, the row's own span of the patch's image (a convex
-                // quadrilateral) is narrower than its bounds when the patch is turned.
-                let (x0, x1) = match (ss, &p.corners) {
-                    (1, Some(corners)) => match row_span(corners, row_y0) {
-                        Some(span) => span,
-                        None => continue,
-                    },
-                    _ => (p.bounds[0], p.bounds[1]),
-                };
-                let first = ((x0 * camera.fx_px + camera.cx_px - offsets[ss - 1]).floor() - 1.0)
-                    .clamp(0.0, width as f64) as usize;
-                let last = ((x1 * camera.fx_px + camera.cx_px - offsets[0]).ceil() + 1.0)
-                    .clamp(0.0, width as f64) as usize;
-                if first < last {
-                    patch_spans.push((first, last));
-                }
-            }
-            patch_spans.sort_unstable();
-            let mut next = 0;
-            for &(first, last) in &patch_spans {
-                match runs.last_mut() {
-                    Some((run, true)) if first <= run.end => run.end = run.end.max(last),
-                    _ => {
-                        if next < first {
-                            runs.push((next..first, false));
-                        }
-                        runs.push((first..last, true));
-                    }
-                }
-                next = runs.last().map_or(0, |(run, _)| run.end);
-            }
-            if next < width {
-                runs.push((next..width, false));
-            }
+        if frame.undistorted {
+            frame.column_runs(&candidates, row_y0, &mut patch_spans, &mut runs);
         } else {
             runs.push((0..width, true));
         }
-        // One sample per pixel without distortion: every pixel's ray meets the ground at a
-        // point that is a plain function of its column (ray(x) = c0 + x·c1 in the row), so the
-        // row's ground points are computed and the background sampled at them in one pass each,
-        // and only the pixels that may see a patch take the path below.
-        let fast_row = undistorted && ss == 1;
+        // One sample per pixel without distortion: the whole row is drawn as ground (or sky)
+        // first, and only the pixels that may see a patch take the path below.
+        let fast_row = frame.undistorted && ss == 1;
         if fast_row {
-            let y_row = (row as f64 - camera.cy_px) / camera.fy_px;
-            let c0 = [
-                r[(0, 1)] * y_row + r[(0, 2)],
-                r[(1, 1)] * y_row + r[(1, 2)],
-                r[(2, 1)] * y_row + r[(2, 2)],
-            ];
-            let c1 = [r[(0, 0)], r[(1, 0)], r[(2, 0)]];
-            for (point, &x) in ground_points.iter_mut().zip(&column_x) {
-                let ray_z = c0[2] + x * c1[2];
-                let t = ground_height_m / ray_z;
-                *point = if ray_z.abs() > 1e-12 && t > 0.0 {
-                    [
-                        origin.x + (c0[0] + x * c1[0]) * t,
-                        origin.y + (c0[1] + x * c1[1]) * t,
-                    ]
-                } else {
-                    [f64::NAN; 2]
-                };
-            }
-            scene
-                .background
-                .sample_many(&ground_points, &mut ground_values);
-            // The whole row as ground (or sky), in a pass with no branches to vectorise; the
-            // columns that may see a patch are drawn again below.
-            for ((out, point), &value) in row_out.iter_mut().zip(&ground_points).zip(&ground_values)
-            {
-                *out = if point[0].is_nan() { scene.sky } else { value }.clamp(0.0, 1.0);
-            }
+            frame.draw_row_as_ground(row, &mut ground_points, &mut ground_values, row_out);
         }
         for (columns, may_meet_patch) in runs.iter().cloned() {
             if fast_row && !may_meet_patch {
@@ -324,48 +217,265 @@ fn render_rows_here(rows: RenderRows<'_>) -> Result<(), RenderError> {
             let candidates: &[&PreparedPatch<'_>] = if may_meet_patch { &candidates } else { &[] };
             for col in columns {
                 let out = &mut row_out[col];
-                let mut sum = 0f32;
-                // The background is texture, not truth: it is sampled once per pixel, at the
-                // centroid of the samples that see it, which makes supersampling cost little
-                // more than the patches' edges need. Patches are sampled at every sample.
-                let (mut ground_n, mut ground_e, mut ground_samples) = (0.0, 0.0, 0u32);
-                for &dv in &offsets {
-                    for &du in &offsets {
-                        let (u, v) = (col as f64 + du, row as f64 + dv);
-                        let (x, y) = if undistorted {
-                            (
-                                (u - camera.cx_px) / camera.fx_px,
-                                (v - camera.cy_px) / camera.fy_px,
-                            )
-                        } else {
-                            camera.normalized(u, v)
-                        };
-                        // The ray need not be unit length: the plane intersection scales with it.
-                        let ray = Vector3::new(
-                            r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)],
-                            r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)],
-                            r[(2, 0)] * x + r[(2, 1)] * y + r[(2, 2)],
-                        );
-                        match shade(candidates, x, y, ray) {
-                            Ok(value) => sum += value.clamp(0.0, 1.0),
-                            Err((n, e)) => {
-                                ground_n += n;
-                                ground_e += e;
-                                ground_samples += 1;
-                            }
-                        }
-                    }
-                }
-                if ground_samples > 0 {
-                    let k = ground_samples as f64;
-                    let value = scene.background.sample(ground_n / k, ground_e / k);
-                    sum += ground_samples as f32 * value.clamp(0.0, 1.0);
-                }
-                *out = sum * inv_samples;
+                *out = frame.pixel_intensity(candidates, col, row);
             }
         }
     }
     Ok(())
+}
+
+/// The supersampling factor, the camera's size and `len` values of rows from `first_row`
+/// checked before [`render_rows`] draws into them.
+fn check_row_buffer(
+    camera: &PinholeCamera,
+    ss: usize,
+    first_row: usize,
+    len: usize,
+) -> Result<(), RenderError> {
+    if !(1..=16).contains(&ss) {
+        return Err(RenderError::Supersampling(ss));
+    }
+    // The camera's fields are public, so its size is checked here too.
+    let (width, height) = (camera.width_px, camera.height_px);
+    if width == 0 || height == 0 {
+        return Err(FrameError::Empty { width, height }.into());
+    }
+    let rows = len / width;
+    if !len.is_multiple_of(width) || first_row + rows > height {
+        return Err(RenderError::RowBuffer {
+            width,
+            height,
+            first_row,
+            len,
+        });
+    }
+    Ok(())
+}
+
+/// What every row of one [`render_rows`] call shares: the camera and its rays in the world,
+/// the supersampling pattern, and each column's normalised x.
+struct FrameRays<'a> {
+    camera: &'a PinholeCamera,
+    scene: &'a Scene,
+    /// The camera-to-world rotation: a sample's ray is `r · (x, y, 1)`.
+    r: &'a Matrix3<f64>,
+    origin: Vector3<f64>,
+    undistorted: bool,
+    /// Samples per pixel side, their offsets from the pixel's centre, and 1 / samples.
+    ss: usize,
+    offsets: Vec<f64>,
+    inv_samples: f32,
+    width: usize,
+    /// The ground's depth below the camera, for the fast path.
+    ground_height_m: f64,
+    /// Each column's normalised x (the same in every row), for the fast path.
+    column_x: Vec<f64>,
+}
+
+impl<'a> FrameRays<'a> {
+    #[inline(always)]
+    fn new(
+        camera: &'a PinholeCamera,
+        scene: &'a Scene,
+        r: &'a Matrix3<f64>,
+        origin: Vector3<f64>,
+        ss: usize,
+    ) -> Self {
+        let width = camera.width_px;
+        let undistorted = camera.distortion.is_zero();
+        let inv_samples = 1.0 / (ss * ss) as f32;
+        let offsets: Vec<f64> = (0..ss)
+            .map(|i| (i as f64 + 0.5) / ss as f64 - 0.5)
+            .collect();
+        let ground_height_m = scene.ground_down_m - origin.z;
+        let column_x: Vec<f64> = (0..width)
+            .map(|col| (col as f64 - camera.cx_px) / camera.fx_px)
+            .collect();
+        Self {
+            camera,
+            scene,
+            r,
+            origin,
+            undistorted,
+            ss,
+            offsets,
+            inv_samples,
+            width,
+            ground_height_m,
+            column_x,
+        }
+    }
+
+    /// The normalised y of the row's first and last sample row (without distortion).
+    #[inline(always)]
+    fn row_y_span(&self, row: usize) -> (f64, f64) {
+        let camera = self.camera;
+        let (offsets, ss) = (&self.offsets, self.ss);
+        (
+            (row as f64 + offsets[0] - camera.cy_px) / camera.fy_px,
+            (row as f64 + offsets[ss - 1] - camera.cy_px) / camera.fy_px,
+        )
+    }
+
+    /// Without distortion: the row's columns as `runs` in order, each marked with whether it
+    /// may meet one of the row's `candidates` (`patch_spans` is scratch space).
+    #[inline(always)]
+    fn column_runs(
+        &self,
+        candidates: &[&PreparedPatch<'_>],
+        row_y0: f64,
+        patch_spans: &mut Vec<(usize, usize)>,
+        runs: &mut Vec<(std::ops::Range<usize>, bool)>,
+    ) {
+        let (camera, offsets, ss, width) = (self.camera, &self.offsets, self.ss, self.width);
+        patch_spans.clear();
+        for p in candidates {
+            // Columns whose first or last sample's x can fall within the patch's bounds
+            // (an infinite bound saturates the conversion to the image's edge).
+            // With one sample per pixel, the row's own span of the patch's image (a convex
+            // quadrilateral) is narrower than its bounds when the patch is turned.
+            let (x0, x1) = match (ss, &p.corners) {
+                (1, Some(corners)) => match row_span(corners, row_y0) {
+                    Some(span) => span,
+                    None => continue,
+                },
+                _ => (p.bounds[0], p.bounds[1]),
+            };
+            let first = ((x0 * camera.fx_px + camera.cx_px - offsets[ss - 1]).floor() - 1.0)
+                .clamp(0.0, width as f64) as usize;
+            let last = ((x1 * camera.fx_px + camera.cx_px - offsets[0]).ceil() + 1.0)
+                .clamp(0.0, width as f64) as usize;
+            if first < last {
+                patch_spans.push((first, last));
+            }
+        }
+        patch_spans.sort_unstable();
+        let mut next = 0;
+        for &(first, last) in patch_spans.iter() {
+            match runs.last_mut() {
+                Some((run, true)) if first <= run.end => run.end = run.end.max(last),
+                _ => {
+                    if next < first {
+                        runs.push((next..first, false));
+                    }
+                    runs.push((first..last, true));
+                }
+            }
+            next = runs.last().map_or(0, |(run, _)| run.end);
+        }
+        if next < width {
+            runs.push((next..width, false));
+        }
+    }
+
+    /// The fast path (one sample per pixel, no distortion): every pixel's ray meets the ground
+    /// at a point that is a plain function of its column (ray(x) = c0 + x·c1 in the row), so
+    /// the row's ground points are computed and the background sampled at them in one pass
+    /// each, into `row_out`.
+    #[inline(always)]
+    fn draw_row_as_ground(
+        &self,
+        row: usize,
+        ground_points: &mut [[f64; 2]],
+        ground_values: &mut [f32],
+        row_out: &mut [f32],
+    ) {
+        let (camera, r, origin, scene) = (self.camera, self.r, &self.origin, self.scene);
+        let ground_height_m = self.ground_height_m;
+        let y_row = (row as f64 - camera.cy_px) / camera.fy_px;
+        let c0 = [
+            r[(0, 1)] * y_row + r[(0, 2)],
+            r[(1, 1)] * y_row + r[(1, 2)],
+            r[(2, 1)] * y_row + r[(2, 2)],
+        ];
+        let c1 = [r[(0, 0)], r[(1, 0)], r[(2, 0)]];
+        for (point, &x) in ground_points.iter_mut().zip(&self.column_x) {
+            let ray_z = c0[2] + x * c1[2];
+            let t = ground_height_m / ray_z;
+            *point = if ray_z.abs() > 1e-12 && t > 0.0 {
+                [
+                    origin.x + (c0[0] + x * c1[0]) * t,
+                    origin.y + (c0[1] + x * c1[1]) * t,
+                ]
+            } else {
+                [f64::NAN; 2]
+            };
+        }
+        scene.background.sample_many(ground_points, ground_values);
+        // The whole row as ground (or sky), in a pass with no branches to vectorise; the
+        // columns that may see a patch are drawn again by the caller.
+        for ((out, point), &value) in row_out
+            .iter_mut()
+            .zip(ground_points.iter())
+            .zip(ground_values.iter())
+        {
+            *out = if point[0].is_nan() { scene.sky } else { value }.clamp(0.0, 1.0);
+        }
+    }
+
+    /// The intensity of pixel (`col`, `row`): the mean of its samples, each meeting one of
+    /// `candidates`, the ground or the sky.
+    #[inline(always)]
+    fn pixel_intensity(&self, candidates: &[&PreparedPatch<'_>], col: usize, row: usize) -> f32 {
+        let (camera, r, scene) = (self.camera, self.r, self.scene);
+        let undistorted = self.undistorted;
+        let mut sum = 0f32;
+        // The background is texture, not truth: it is sampled once per pixel, at the
+        // centroid of the samples that see it, which makes supersampling cost little
+        // more than the patches' edges need. Patches are sampled at every sample.
+        let (mut ground_n, mut ground_e, mut ground_samples) = (0.0, 0.0, 0u32);
+        for &dv in &self.offsets {
+            for &du in &self.offsets {
+                let (u, v) = (col as f64 + du, row as f64 + dv);
+                let (x, y) = if undistorted {
+                    (
+                        (u - camera.cx_px) / camera.fx_px,
+                        (v - camera.cy_px) / camera.fy_px,
+                    )
+                } else {
+                    camera.normalized(u, v)
+                };
+                // The ray need not be unit length: the plane intersection scales with it.
+                let ray = Vector3::new(
+                    r[(0, 0)] * x + r[(0, 1)] * y + r[(0, 2)],
+                    r[(1, 0)] * x + r[(1, 1)] * y + r[(1, 2)],
+                    r[(2, 0)] * x + r[(2, 1)] * y + r[(2, 2)],
+                );
+                match self.shade(candidates, x, y, ray) {
+                    Ok(value) => sum += value.clamp(0.0, 1.0),
+                    Err((n, e)) => {
+                        ground_n += n;
+                        ground_e += e;
+                        ground_samples += 1;
+                    }
+                }
+            }
+        }
+        if ground_samples > 0 {
+            let k = ground_samples as f64;
+            let value = scene.background.sample(ground_n / k, ground_e / k);
+            sum += ground_samples as f32 * value.clamp(0.0, 1.0);
+        }
+        sum * self.inv_samples
+    }
+
+    /// A sample sees a patch's texture or the sky (`Ok`), or the ground at world (north, east)
+    /// (`Err`).
+    #[inline(always)]
+    fn shade(
+        &self,
+        candidates: &[&PreparedPatch<'_>],
+        x: f64,
+        y: f64,
+        ray: Vector3<f64>,
+    ) -> Result<f32, (f64, f64)> {
+        let (origin, scene) = (&self.origin, self.scene);
+        match nearest_hit(candidates, x, y, &ray, origin, scene.ground_down_m) {
+            Hit::Patch { patch, u, v, .. } => Ok(patch.texture.sample(u, v)),
+            Hit::Ground { t } => Err((origin.x + ray.x * t, origin.y + ray.y * t)),
+            Hit::Nothing => Ok(scene.sky),
+        }
+    }
 }
 
 /// The scene's patches checked and prepared for the inner loop, topmost first.

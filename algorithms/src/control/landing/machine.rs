@@ -2,7 +2,10 @@
 
 use nalgebra::{Vector2, Vector3};
 
-use super::{LandingConfig, LandingError, LandingInput, LandingMode, LandingOutput, RelativeFix};
+use super::{
+    LandingConfig, LandingError, LandingInput, LandingMode, LandingOutput, NearGroundWind,
+    RelativeFix,
+};
 use crate::control::mpc::{MpcController, MpcInput};
 use crate::control::pid::{HorizontalPid, PidInput};
 use crate::control::wind_shear::descent_feed_forward_ne_m_s;
@@ -130,86 +133,14 @@ impl Machine {
         let c = self.config;
         let time_s = input.time_s;
         let height_m = input.height_above_pad_m;
-        if let (Some(previous_s), Some(previous_v)) =
-            (self.last_time_s, self.previous_platform_velocity_ne_m_s)
-        {
-            let dt_s = time_s - previous_s;
-            let raw = (input.platform_velocity_ne_m_s - previous_v) / dt_s;
-            self.platform_accel_ne_m_s2 = low_pass(
-                self.platform_accel_ne_m_s2,
-                raw,
-                dt_s,
-                c.platform_accel_filter_tau_s,
-            );
-        }
-        self.previous_platform_velocity_ne_m_s = Some(input.platform_velocity_ne_m_s);
-        if !input.setpoints_followed {
-            // Nor do the PID's integral and the wind estimate mean anything while nobody flies
-            // the commands: they restart when the autopilot takes them again.
-            self.velocity_shortfall_ne_m_s = Vector2::zeros();
-            self.expected_velocity_ne_m_s = None;
-            self.pid.reset();
-            self.last_pid_time_s = None;
-        } else if let (Some(previous_s), Some(command)) =
-            (self.last_time_s, self.last_command_ne_m_s)
-        {
-            if c.wind_compensation_tau_s > 0.0 {
-                let dt_s = time_s - previous_s;
-                let expected = self
-                    .expected_velocity_ne_m_s
-                    .unwrap_or(input.uav_velocity_ne_m_s);
-                let expected = low_pass(expected, command, dt_s, c.autopilot_velocity_tau_s);
-                self.expected_velocity_ne_m_s = Some(expected);
-                let shortfall = expected - input.uav_velocity_ne_m_s;
-                self.velocity_shortfall_ne_m_s = clamp_norm(
-                    low_pass(
-                        self.velocity_shortfall_ne_m_s,
-                        shortfall,
-                        dt_s,
-                        c.wind_compensation_tau_s,
-                    ),
-                    c.max_wind_compensation_m_s,
-                );
-            }
-        }
+        self.update_platform_accel(input);
+        self.update_velocity_shortfall(input);
         let dt_s = self
             .last_time_s
             .map_or(0.0, |previous_s| time_s - previous_s);
-        let raw_offset = input.pad_in_view_offset_per_height;
-        let view_offset = low_pass_from(
-            self.pad_in_view_offset_per_height,
-            raw_offset,
-            dt_s,
-            c.keep_in_view_tau_s,
-        );
-        self.pad_in_view_offset_per_height = Some(view_offset);
-        let wind = input.near_ground_wind.filter(|wind| {
-            wind.altitude_m.is_finite()
-                && wind.aerodynamic_accel_ne_m_s2.iter().all(|v| v.is_finite())
-        });
-        let raw_aero = wind.map(|wind| wind.aerodynamic_accel_ne_m_s2);
-        self.aerodynamic_accel_ne_m_s2 = raw_aero.map(|raw| {
-            low_pass_from(
-                self.aerodynamic_accel_ne_m_s2,
-                raw,
-                dt_s,
-                AERODYNAMIC_ACCEL_TAU_S,
-            )
-        });
-        self.aerodynamic_baseline_ne_m_s2 = raw_aero.map(|raw| {
-            low_pass_from(
-                self.aerodynamic_baseline_ne_m_s2,
-                raw,
-                dt_s,
-                c.gust_baseline_tau_s,
-            )
-        });
-        if let Some(previous_m) = self.previous_height_m.filter(|_| dt_s > 0.0) {
-            let raw_m_s = (previous_m - height_m) / dt_s;
-            self.descent_rate_m_s =
-                low_pass(self.descent_rate_m_s, raw_m_s, dt_s, DESCENT_RATE_TAU_S);
-        }
-        self.previous_height_m = Some(height_m);
+        let view_offset = self.update_view_offset(input, dt_s);
+        let wind = self.update_aerodynamic_accel(input, dt_s);
+        self.update_descent_rate(height_m, dt_s);
         // Where the vehicle holds itself relative to the pad (UAV − pad): over it, or upwind
         // by what keeps the pad in view.
         let setpoint_ne_m = -view_offset * height_m.max(0.0);
@@ -240,10 +171,155 @@ impl Machine {
             }
         }
 
-        let mut tracking_velocity = |this: &mut Self| -> Result<Vector2<f64>, LandingError> {
-            this.horizontal_tracking(input, usable_fix, setpoint_ne_m, mpc.as_deref_mut())
-        };
-        let (horizontal, vertical_down_m_s, land_command) = match self.mode {
+        let (horizontal, vertical_down_m_s, land_command) =
+            self.mode_setpoints(input, usable_fix, setpoint_ne_m, dt_s, centred, mpc)?;
+        let horizontal =
+            self.with_wind_shear_feed_forward(horizontal, wind, vertical_down_m_s, height_m);
+        let gust_shift_ne_m_s = self.gust_shift_ne_m_s(height_m);
+        // The autopilot's shortfall is made up while the vehicle steers (not while it only
+        // holds still in Search, nor on the ground).
+        let steering = !matches!(self.mode, LandingMode::Search | LandingMode::Landed);
+        let horizontal = self.with_velocity_shortfall(horizontal, steering);
+        let horizontal = self.with_final_correction_bound(input, horizontal, gust_shift_ne_m_s);
+        let horizontal = clamp_norm(horizontal, c.max_horizontal_speed_m_s);
+        // The gust's answer is spent on the gust: the shortfall estimate expects the rest.
+        self.last_command_ne_m_s = steering.then_some(horizontal - gust_shift_ne_m_s);
+        Ok(LandingOutput {
+            mode: self.mode,
+            velocity_setpoint_ned_m_s: Vector3::new(horizontal.x, horizontal.y, vertical_down_m_s),
+            land_command,
+            horizontal_error_m: error_m,
+            centred_radius_m: radius_m,
+        })
+    }
+
+    /// The platform's acceleration, low-passed, from the change of its velocity since the
+    /// previous step; then this step's velocity becomes the previous one.
+    fn update_platform_accel(&mut self, input: &LandingInput) {
+        let c = self.config;
+        let time_s = input.time_s;
+        if let (Some(previous_s), Some(previous_v)) =
+            (self.last_time_s, self.previous_platform_velocity_ne_m_s)
+        {
+            let dt_s = time_s - previous_s;
+            let raw = (input.platform_velocity_ne_m_s - previous_v) / dt_s;
+            self.platform_accel_ne_m_s2 = low_pass(
+                self.platform_accel_ne_m_s2,
+                raw,
+                dt_s,
+                c.platform_accel_filter_tau_s,
+            );
+        }
+        self.previous_platform_velocity_ne_m_s = Some(input.platform_velocity_ne_m_s);
+    }
+
+    /// The autopilot's shortfall against the last command (the wind's push, by its velocity
+    /// lag), low-passed and bounded; cleared with the PID while the commands are not flown.
+    fn update_velocity_shortfall(&mut self, input: &LandingInput) {
+        let c = self.config;
+        let time_s = input.time_s;
+        if !input.setpoints_followed {
+            // Nor do the PID's integral and the wind estimate mean anything while nobody flies
+            // the commands: they restart when the autopilot takes them again.
+            self.velocity_shortfall_ne_m_s = Vector2::zeros();
+            self.expected_velocity_ne_m_s = None;
+            self.pid.reset();
+            self.last_pid_time_s = None;
+        } else if let (Some(previous_s), Some(command)) =
+            (self.last_time_s, self.last_command_ne_m_s)
+        {
+            if c.wind_compensation_tau_s > 0.0 {
+                let dt_s = time_s - previous_s;
+                let expected = self
+                    .expected_velocity_ne_m_s
+                    .unwrap_or(input.uav_velocity_ne_m_s);
+                let expected = low_pass(expected, command, dt_s, c.autopilot_velocity_tau_s);
+                self.expected_velocity_ne_m_s = Some(expected);
+                let shortfall = expected - input.uav_velocity_ne_m_s;
+                self.velocity_shortfall_ne_m_s = clamp_norm(
+                    low_pass(
+                        self.velocity_shortfall_ne_m_s,
+                        shortfall,
+                        dt_s,
+                        c.wind_compensation_tau_s,
+                    ),
+                    c.max_wind_compensation_m_s,
+                );
+            }
+        }
+    }
+
+    /// The keep-in-view offset per metre of height, low-passed over `dt_s`.
+    fn update_view_offset(&mut self, input: &LandingInput, dt_s: f64) -> Vector2<f64> {
+        let c = self.config;
+        let raw_offset = input.pad_in_view_offset_per_height;
+        let view_offset = low_pass_from(
+            self.pad_in_view_offset_per_height,
+            raw_offset,
+            dt_s,
+            c.keep_in_view_tau_s,
+        );
+        self.pad_in_view_offset_per_height = Some(view_offset);
+        view_offset
+    }
+
+    /// The aerodynamic acceleration and its slow baseline, low-passed over `dt_s`, from the
+    /// input's wind when it is finite (gone without it); returns that wind.
+    fn update_aerodynamic_accel(
+        &mut self,
+        input: &LandingInput,
+        dt_s: f64,
+    ) -> Option<NearGroundWind> {
+        let c = self.config;
+        let wind = input.near_ground_wind.filter(|wind| {
+            wind.altitude_m.is_finite()
+                && wind.aerodynamic_accel_ne_m_s2.iter().all(|v| v.is_finite())
+        });
+        let raw_aero = wind.map(|wind| wind.aerodynamic_accel_ne_m_s2);
+        self.aerodynamic_accel_ne_m_s2 = raw_aero.map(|raw| {
+            low_pass_from(
+                self.aerodynamic_accel_ne_m_s2,
+                raw,
+                dt_s,
+                AERODYNAMIC_ACCEL_TAU_S,
+            )
+        });
+        self.aerodynamic_baseline_ne_m_s2 = raw_aero.map(|raw| {
+            low_pass_from(
+                self.aerodynamic_baseline_ne_m_s2,
+                raw,
+                dt_s,
+                c.gust_baseline_tau_s,
+            )
+        });
+        wind
+    }
+
+    /// The descent rate from the previous step's height, low-passed (not on the first step);
+    /// then this step's height becomes the previous one.
+    fn update_descent_rate(&mut self, height_m: f64, dt_s: f64) {
+        if let Some(previous_m) = self.previous_height_m.filter(|_| dt_s > 0.0) {
+            let raw_m_s = (previous_m - height_m) / dt_s;
+            self.descent_rate_m_s =
+                low_pass(self.descent_rate_m_s, raw_m_s, dt_s, DESCENT_RATE_TAU_S);
+        }
+        self.previous_height_m = Some(height_m);
+    }
+
+    /// The current mode's horizontal velocity, vertical speed (down positive) and whether it
+    /// asks the autopilot to land, before the wind's and the commit's shaping.
+    fn mode_setpoints(
+        &mut self,
+        input: &LandingInput,
+        usable_fix: Option<RelativeFix>,
+        setpoint_ne_m: Vector2<f64>,
+        dt_s: f64,
+        centred: bool,
+        mpc: Option<&mut MpcController>,
+    ) -> Result<(Vector2<f64>, f64, bool), LandingError> {
+        let c = self.config;
+        let height_m = input.height_above_pad_m;
+        Ok(match self.mode {
             // Held where it began, or as far upwind of there as its camera needs to see the
             // spot it first hovered over (where the pad was expected).
             LandingMode::Search => {
@@ -256,11 +332,11 @@ impl Machine {
                 (shift, self.hold_height(height_m, c.initial_height_m), false)
             }
             LandingMode::Follow => {
-                let h = tracking_velocity(self)?;
+                let h = self.horizontal_tracking(input, usable_fix, setpoint_ne_m, mpc)?;
                 (h, self.hold_height(height_m, self.hold_height_m), false)
             }
             LandingMode::Descend => {
-                let h = tracking_velocity(self)?;
+                let h = self.horizontal_tracking(input, usable_fix, setpoint_ne_m, mpc)?;
                 // Only descend while centred; hold height while off centre or out of view.
                 let down = if centred { c.descent_speed_m_s } else { 0.0 };
                 (h, down, false)
@@ -282,7 +358,7 @@ impl Machine {
                 )
             }
             LandingMode::FinalLanding => {
-                let h = tracking_velocity(self)?;
+                let h = self.horizontal_tracking(input, usable_fix, setpoint_ne_m, mpc)?;
                 let down_m_s = c.final_descent_rate_m_s(height_m, self.descent_rate_m_s);
                 (h, down_m_s, true)
             }
@@ -294,10 +370,20 @@ impl Machine {
                 LANDED_PRESS_DOWN_M_S.min(c.final_descent_rate_m_s(0.0, 0.0)),
                 true,
             ),
-        };
-        // Descending into the weaker wind near the ground: lean less before the velocity loop
-        // finds out.
-        let horizontal = match (wind, self.aerodynamic_accel_ne_m_s2) {
+        })
+    }
+
+    /// Descending into the weaker wind near the ground: lean less before the velocity loop
+    /// finds out.
+    fn with_wind_shear_feed_forward(
+        &self,
+        horizontal: Vector2<f64>,
+        wind: Option<NearGroundWind>,
+        vertical_down_m_s: f64,
+        height_m: f64,
+    ) -> Vector2<f64> {
+        let c = self.config;
+        match (wind, self.aerodynamic_accel_ne_m_s2) {
             (Some(wind), Some(aero))
                 if c.wind_shear_roughness_m > 0.0
                     && vertical_down_m_s > 0.0
@@ -315,13 +401,17 @@ impl Machine {
                     )
             }
             _ => horizontal,
-        };
-        // After the commit a gust is answered as the vehicle feels it: its push (the aerodynamic
-        // acceleration less what the autopilot's integrator has learned) is asked of the
-        // velocity loop the other way, before a drift shows it. Earlier, the tracking itself
-        // answers (the answer there made the tail worse: Dryden p95 up to 0.41 m); in the last
-        // centimetres it only tips the vehicle, as the corrections do.
-        let gust_shift_ne_m_s = match (
+        }
+    }
+
+    /// After the commit a gust is answered as the vehicle feels it: its push (the aerodynamic
+    /// acceleration less what the autopilot's integrator has learned) is asked of the
+    /// velocity loop the other way, before a drift shows it. Earlier, the tracking itself
+    /// answers (the answer there made the tail worse: Dryden p95 up to 0.41 m); in the last
+    /// centimetres it only tips the vehicle, as the corrections do.
+    fn gust_shift_ne_m_s(&self, height_m: f64) -> Vector2<f64> {
+        let c = self.config;
+        match (
             self.aerodynamic_accel_ne_m_s2,
             self.aerodynamic_baseline_ne_m_s2,
         ) {
@@ -331,22 +421,39 @@ impl Machine {
                 -(now - baseline) * c.gust_feed_forward_s
             }
             _ => Vector2::zeros(),
-        };
-        // The autopilot's shortfall is made up while the vehicle steers (not while it only
-        // holds still in Search, nor on the ground).
-        let steering = !matches!(self.mode, LandingMode::Search | LandingMode::Landed);
-        let horizontal = if steering && c.wind_compensation_tau_s > 0.0 {
+        }
+    }
+
+    /// The command with the autopilot's shortfall made up while `steering`; otherwise the
+    /// shortfall estimate is dropped (it restarts when the vehicle steers again).
+    fn with_velocity_shortfall(
+        &mut self,
+        horizontal: Vector2<f64>,
+        steering: bool,
+    ) -> Vector2<f64> {
+        let c = self.config;
+        if steering && c.wind_compensation_tau_s > 0.0 {
             horizontal + self.velocity_shortfall_ne_m_s
         } else {
             self.velocity_shortfall_ne_m_s = Vector2::zeros();
             self.expected_velocity_ne_m_s = None;
             horizontal
-        };
-        // After the commit the vehicle moves with the pad (its velocity and turn, the wind's
-        // shortfall made up) plus a bounded correction, a small one in the last centimetres:
-        // so late a correction cannot centre the vehicle, it only tips it. The gust's answer
-        // comes on top, unbounded: it is no correction, it meets a force.
-        let horizontal = if self.mode == LandingMode::FinalLanding {
+        }
+    }
+
+    /// After the commit the vehicle moves with the pad (its velocity and turn, the wind's
+    /// shortfall made up) plus a bounded correction, a small one in the last centimetres:
+    /// so late a correction cannot centre the vehicle, it only tips it. The gust's answer
+    /// comes on top, unbounded: it is no correction, it meets a force.
+    fn with_final_correction_bound(
+        &self,
+        input: &LandingInput,
+        horizontal: Vector2<f64>,
+        gust_shift_ne_m_s: Vector2<f64>,
+    ) -> Vector2<f64> {
+        let c = self.config;
+        let height_m = input.height_above_pad_m;
+        if self.mode == LandingMode::FinalLanding {
             let with_the_pad =
                 self.platform_feed_forward_ne_m_s(input) + self.velocity_shortfall_ne_m_s;
             let limit_m_s = if self.in_touchdown_band(height_m) {
@@ -357,17 +464,7 @@ impl Machine {
             with_the_pad + clamp_norm(horizontal - with_the_pad, limit_m_s) + gust_shift_ne_m_s
         } else {
             horizontal
-        };
-        let horizontal = clamp_norm(horizontal, c.max_horizontal_speed_m_s);
-        // The gust's answer is spent on the gust: the shortfall estimate expects the rest.
-        self.last_command_ne_m_s = steering.then_some(horizontal - gust_shift_ne_m_s);
-        Ok(LandingOutput {
-            mode: self.mode,
-            velocity_setpoint_ned_m_s: Vector3::new(horizontal.x, horizontal.y, vertical_down_m_s),
-            land_command,
-            horizontal_error_m: error_m,
-            centred_radius_m: radius_m,
-        })
+        }
     }
 
     /// The last centimetres before contact, where a correction only tips the vehicle: below
