@@ -297,7 +297,9 @@ mod tests {
     #[cfg(not(feature = "gstreamer"))]
     #[test]
     fn without_gstreamer_a_pipeline_says_how_to_get_it() {
-        let error = open("rtp-h264:5600", None).err().expect("no GStreamer here");
+        let error = open("rtp-h264:5600", None)
+            .err()
+            .expect("no GStreamer here");
         assert!(matches!(error, CameraSourceError::NoGstreamer { .. }));
         assert!(error.to_string().contains("--features gstreamer"));
     }

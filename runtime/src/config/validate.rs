@@ -412,9 +412,15 @@ fn check_camera(camera: &CameraSettings, path: &IssuePath, issues: &mut Issues) 
             format!("the camera's horizontal_fov_deg must be within (0, 180), found {fov_deg}"),
         );
     }
-    for (key, value) in [("width_px", camera.width_px), ("height_px", camera.height_px)] {
+    for (key, value) in [
+        ("width_px", camera.width_px),
+        ("height_px", camera.height_px),
+    ] {
         if value == 0 {
-            issues.push(&path.key(key), format!("the camera's {key} must be at least 1"));
+            issues.push(
+                &path.key(key),
+                format!("the camera's {key} must be at least 1"),
+            );
         }
     }
 }

@@ -362,12 +362,12 @@ mod tests {
     //! where the test controls detections, the detector's observations.
 
     use super::*;
-    use algorithms::camera::PinholeCamera;
     use crate::bus::Publisher;
     use crate::catalog::{PluginInfo, Port};
     use crate::config::{Knob, Resource, TaskConfig};
     use crate::scheduler::SchedulerBuilder;
     use algorithms::camera::CameraPose;
+    use algorithms::camera::PinholeCamera;
     use algorithms::estimation::projection::Attitude;
     use algorithms::vision::image::DepthImage;
     use algorithms::vision::landing_marker::{

@@ -119,8 +119,8 @@ mod tests {
         LANDING_SETPOINT, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
     };
     use algorithms::camera::{CameraPose, PinholeCamera};
-    use algorithms::estimation::camera_mount::CameraMount;
     use algorithms::control::landing::LandingMode;
+    use algorithms::estimation::camera_mount::CameraMount;
     use algorithms::estimation::projection::Attitude;
     use algorithms::vision::landing_marker::LandingMarkerLayout;
     use algorithms::vision::render::{

@@ -1,8 +1,8 @@
 //! Building the simulated world from the mission: powers, wind, camera, pad, track.
 
 use super::*;
-use sim::power::{SimBattery, SimPack};
 use algorithms::estimation::camera_mount::CameraMount;
+use sim::power::{SimBattery, SimPack};
 use sim::world::Body;
 
 /// The rotors' hover power: the config's, or without one the first phase's flight power.
@@ -192,7 +192,10 @@ mod tests {
             ("horizontal_fov_deg = 60.0", "horizontal_fov_deg = 80.0"),
             ("width_px = 640", "width_px = 320"),
             ("height_px = 480", "height_px = 240"),
-            ("rate_fps = 10.0\n# The downward", "rate_fps = 4.0\n# The downward"),
+            (
+                "rate_fps = 10.0\n# The downward",
+                "rate_fps = 4.0\n# The downward",
+            ),
         ]);
         let config = camera_config(&model);
         assert_eq!((config.width_px, config.height_px), (320, 240));
