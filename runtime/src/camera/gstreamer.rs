@@ -132,6 +132,8 @@ struct Arrived {
     captured_at: Instant,
     /// When the appsink handed it over.
     arrived_at: Instant,
+    /// Its capture time is the sender's own.
+    sender_stamped: bool,
 }
 
 #[derive(Default)]
@@ -139,7 +141,6 @@ struct Shared {
     queue: VecDeque<Arrived>,
     samples: u64,
     dropped: u64,
-    sender_stamped: u64,
     sender_stamps_refused: u64,
     /// Unparked at each frame (the runtime's loop, so it takes the frame at once).
     waker: Option<std::thread::Thread>,
@@ -228,10 +229,8 @@ impl GstreamerSource {
                     let captured_at = Instant::now() - age;
                     let image = gray_image(&sample);
                     let mut shared = lock(&callback_shared);
-                    match sender_stamp {
-                        SenderStamp::Age(_) => shared.sender_stamped += 1,
-                        SenderStamp::Refused => shared.sender_stamps_refused += 1,
-                        SenderStamp::Absent => {}
+                    if sender_stamp == SenderStamp::Refused {
+                        shared.sender_stamps_refused += 1;
                     }
                     let frame_index = shared.samples;
                     shared.samples += 1;
@@ -244,6 +243,7 @@ impl GstreamerSource {
                         image,
                         captured_at,
                         arrived_at: Instant::now(),
+                        sender_stamped: matches!(sender_stamp, SenderStamp::Age(_)),
                     });
                     if let Some(waker) = &shared.waker {
                         waker.unpark();
@@ -313,7 +313,6 @@ impl CameraSource for GstreamerSource {
         let arrived = {
             let mut shared = lock(&self.shared);
             self.stats.dropped = shared.dropped;
-            self.stats.sender_stamped = shared.sender_stamped;
             self.stats.sender_stamps_refused = shared.sender_stamps_refused;
             shared.queue.pop_front()
         };
@@ -366,6 +365,7 @@ impl CameraSource for GstreamerSource {
             self.stats.late += 1;
         }
         self.stats.delivered += 1;
+        self.stats.sender_stamped += u64::from(arrived.sender_stamped);
         Ok(Some(CapturedFrame {
             frame: CameraFrame {
                 vehicle_at_capture: None,
@@ -381,7 +381,6 @@ impl CameraSource for GstreamerSource {
         let mut stats = self.stats;
         let shared = lock(&self.shared);
         stats.dropped = shared.dropped;
-        stats.sender_stamped = shared.sender_stamped;
         stats.sender_stamps_refused = shared.sender_stamps_refused;
         stats
     }

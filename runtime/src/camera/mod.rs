@@ -101,7 +101,8 @@ pub struct CameraStats {
     pub malformed: u64,
     /// Times the source fell silent for longer than its stall bound.
     pub stalls: u64,
-    /// Frames stamped with the sender's own capture time (RTP's NTP-64 header extension, RTCP).
+    /// Frames delivered stamped with the sender's own capture time (RTP's NTP-64 header
+    /// extension, RTCP); counted as delivered, so a frame still queued at the end is in neither.
     pub sender_stamped: u64,
     /// Sender capture stamps refused (in the future or too old: the clocks are not in sync);
     /// those frames are stamped at arrival.
