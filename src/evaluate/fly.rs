@@ -46,7 +46,12 @@ pub fn fly_all(
     let real = jobs.first().and_then(|(_, o)| o.autopilot.clone());
     let workers = match &real {
         Some(autopilot) if autopilot.command.is_none() => 1,
-        _ => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        _ => {
+            let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+            // A batch task flies on the cores it was given, not on the whole node.
+            super::batch::allotted_cpus(|name| std::env::var(name).ok())
+                .map_or(cores, |given| given.min(cores))
+        }
     };
     let next = std::sync::atomic::AtomicUsize::new(0);
     let results = std::sync::Mutex::new(vec![Vec::new(); cells]);

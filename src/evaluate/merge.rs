@@ -179,6 +179,17 @@ pub fn read_shard_file(path: &Path) -> Result<ShardFile, MergeError> {
 /// Joins the shard files of one evaluation, each given with its name; every shard exactly once,
 /// every seed of every cell exactly once.
 pub fn merge(files: &[(String, ShardFile)]) -> Result<Merged, MergeError> {
+    join(files, false).map(|(merged, _)| merged)
+}
+
+/// As [`merge`], but missing shards leave holes rather than fail: every run the files hold,
+/// and what is missing, in words. Everything else (another sweep, a shard twice, a seed twice)
+/// still fails.
+pub fn merge_partial(files: &[(String, ShardFile)]) -> Result<(Merged, Vec<String>), MergeError> {
+    join(files, true)
+}
+
+fn join(files: &[(String, ShardFile)], partial: bool) -> Result<(Merged, Vec<String>), MergeError> {
     let Some((first_name, first)) = files.first() else {
         return Err(MergeError::Nothing);
     };
@@ -214,13 +225,18 @@ pub fn merge(files: &[(String, ShardFile)]) -> Result<Merged, MergeError> {
     }
     let count = first.shard.count;
     let missing: Vec<usize> = (1..=count).filter(|i| !shards.contains_key(i)).collect();
+    let mut holes = Vec::new();
     if !missing.is_empty() {
         let given: Vec<String> = shards.keys().map(|i| format!("{i}/{count}")).collect();
-        return Err(MergeError::Missing {
+        let error = MergeError::Missing {
             missing,
             count,
             given: given.join(", "),
-        });
+        };
+        if !partial {
+            return Err(error);
+        }
+        holes.push(error.to_string());
     }
     let evaluation = &first.evaluation;
     let mut runs = Vec::with_capacity(evaluation.cells.len());
@@ -248,17 +264,20 @@ pub fn merge(files: &[(String, ShardFile)]) -> Result<Merged, MergeError> {
         }
         let mut cell_runs = Vec::with_capacity(evaluation.seeds.len());
         for &seed in &evaluation.seeds {
-            let Some((record, _)) = by_seed.get(&seed) else {
-                return Err(MergeError::Incomplete { seed, cell: *cell });
-            };
-            cell_runs.push(*record);
+            match by_seed.get(&seed) {
+                Some((record, _)) => cell_runs.push(*record),
+                // A missing shard's runs: already named as the shard.
+                None if partial && !holes.is_empty() => {}
+                None => return Err(MergeError::Incomplete { seed, cell: *cell }),
+            }
         }
         runs.push(cell_runs);
     }
-    Ok(Merged {
+    let merged = Merged {
         evaluation: evaluation.clone(),
         runs,
-    })
+    };
+    Ok((merged, holes))
 }
 
 /// A file's own sanity: a shard of its count, a list of runs per cell, each seed once.

@@ -155,6 +155,20 @@ pub struct Evaluation {
     /// the built-in autopilot).
     #[serde(default = "builtin_autopilot")]
     pub autopilot: String,
+    /// The qosrt that flew it: its version and its binary's SHA-256 (empty in shards from
+    /// before it was recorded). Two binaries may fly the same seed differently.
+    #[serde(default)]
+    pub qosrt_version: String,
+}
+
+/// This qosrt: its version and the first 16 hex digits of its binary's SHA-256 (a rebuild is
+/// another binary), or the version alone where the binary cannot be read.
+pub fn qosrt_version() -> String {
+    let version = env!("CARGO_PKG_VERSION");
+    match std::env::current_exe().and_then(std::fs::read) {
+        Ok(binary) => format!("{version} (binary {})", &sha256_hex(&binary)[..16]),
+        Err(_) => version.to_string(),
+    }
 }
 
 fn builtin_autopilot() -> String {
@@ -196,6 +210,12 @@ impl Evaluation {
             ))
         } else if self.seeds != other.seeds {
             Some(("the seeds (--seed, --runs)", seeds(self), seeds(other)))
+        } else if self.qosrt_version != other.qosrt_version {
+            Some((
+                "the qosrt binary",
+                self.qosrt_version.clone(),
+                other.qosrt_version.clone(),
+            ))
         } else if self.autopilot != other.autopilot {
             Some((
                 "the autopilot (--autopilot)",
@@ -227,6 +247,7 @@ fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
+pub mod batch;
 mod fly;
 pub mod grid;
 mod hazards;

@@ -1,5 +1,6 @@
 //! Flying the evaluation, or merging shard files, and printing the table.
 
+use super::batch::resolve_shard;
 use super::*;
 
 /// The options of one mission of the evaluation.
@@ -74,8 +75,19 @@ pub fn run(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> E
         seeds: (args.seed..=last_seed).collect(),
         cells,
         autopilot: args.autopilot.name().to_string(),
+        qosrt_version: qosrt_version(),
     };
-    let shard = args.shard.unwrap_or(Shard::WHOLE);
+    let shard = match args.shard {
+        None => Shard::WHOLE,
+        Some(spec) => match resolve_shard(spec, |name| std::env::var(name).ok()) {
+            Ok((shard, Some(source))) => {
+                eprintln!("--shard auto: shard {shard}, from {source}");
+                shard
+            }
+            Ok((shard, None)) => shard,
+            Err(error) => return invalid(error.to_string()),
+        },
+    };
     let jobs: Vec<(usize, SimOptions)> = shard_jobs(evaluation.cells.len(), runs, shard)
         .map(|(cell, seed)| {
             let options = mission_options(
@@ -98,7 +110,7 @@ pub fn run(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> E
     eprintln!(
         "landing evaluation{}: {} of {} ({} × {} each)",
         args.shard
-            .map_or_else(String::new, |s| format!(", shard {s}")),
+            .map_or_else(String::new, |_| format!(", shard {shard}")),
         jobs.len(),
         plural(evaluation.cells.len() * runs, "mission"),
         plural(evaluation.cells.len(), "cell"),
@@ -122,7 +134,7 @@ pub fn run(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> E
     };
     let document = serde_json::to_string_pretty(&file).expect("shard files serialise");
     if let Some(out) = &args.out {
-        if let Err(error) = std::fs::write(out, document + "\n") {
+        if let Err(error) = write_replacing(out, &(document + "\n")) {
             eprintln!("error: cannot write {}: {error}", out.display());
             return ExitCode::FAILURE;
         }
@@ -146,6 +158,21 @@ pub fn run(model: &MissionModel, registry: &PluginRegistry, args: &SimArgs) -> E
     }
 }
 
+/// Writes `text` to `path` whole or not at all: a shard re-run after a failure (a requeued
+/// Slurm task, a retried Kubernetes pod) replaces its earlier file, and a task killed while
+/// writing leaves no half a file for the merge to read.
+fn write_replacing(path: &Path, text: &str) -> std::io::Result<()> {
+    let name = path.file_name().map_or_else(
+        || "shard".into(),
+        |name| name.to_string_lossy().into_owned(),
+    );
+    let partial = path.with_file_name(format!(".{name}.{}.partial", std::process::id()));
+    std::fs::write(&partial, text)?;
+    std::fs::rename(&partial, path).inspect_err(|_| {
+        let _ = std::fs::remove_file(&partial);
+    })
+}
+
 /// `qosrt sim --merge SHARD.json…`: the table of a sharded sweep.
 pub fn run_merge(args: &SimArgs) -> ExitCode {
     let mut files = Vec::with_capacity(args.merge.len());
@@ -158,6 +185,24 @@ pub fn run_merge(args: &SimArgs) -> ExitCode {
             }
         }
     }
+    if args.allow_partial {
+        return match merge_partial(&files) {
+            Ok((merged, holes)) => {
+                let status = report(&merged, args);
+                if holes.is_empty() {
+                    return status;
+                }
+                for hole in &holes {
+                    eprintln!("warning: {hole}");
+                }
+                ExitCode::from(EXIT_PARTIAL)
+            }
+            Err(error) => {
+                eprintln!("error: {error}");
+                ExitCode::from(EXIT_INVALID_CONFIG)
+            }
+        };
+    }
     match merge(&files) {
         Ok(merged) => report(&merged, args),
         Err(error) => {
@@ -166,6 +211,10 @@ pub fn run_merge(args: &SimArgs) -> ExitCode {
         }
     }
 }
+
+/// Exit status of `--merge --allow-partial` when the table has holes: the table is printed,
+/// but a script must not take it for the whole sweep.
+pub const EXIT_PARTIAL: u8 = 3;
 
 /// The table on stdout (or its rows as JSON with `--json`), and as CSV with `--csv`.
 fn report(merged: &Merged, args: &SimArgs) -> ExitCode {

@@ -86,7 +86,7 @@ pub fn table(evaluation: &Evaluation, rows: &[Row]) -> String {
     let tenths = |v: Option<f64>| v.map_or_else(|| "—".into(), |v| format!("{v:.1}"));
     for r in rows {
         out += &format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {:.0} % | {} / {} | {} | {} | {} | {:.2} | {:.3} | {:.2} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {:.0} %{} | {} / {} | {} | {} | {} | {:.2} | {:.3} | {:.2} |\n",
             evaluation.autopilot,
             r.world,
             r.rate_fps,
@@ -95,6 +95,12 @@ pub fn table(evaluation: &Evaluation, rows: &[Row]) -> String {
             r.path,
             r.tractor_speed_m_s,
             100.0 * r.success_rate,
+            // A partial merge's cell: over the runs it has, marked.
+            if r.runs < evaluation.seeds.len() {
+                format!(" (partial: {} of {} runs)", r.runs, evaluation.seeds.len())
+            } else {
+                String::new()
+            },
             metres(r.touchdown_error_p50_m),
             metres(r.touchdown_error_p95_m),
             hundredths(r.touchdown_vertical_speed_p95_m_s),

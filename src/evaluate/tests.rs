@@ -1,3 +1,4 @@
+use super::batch::ShardSpec;
 use super::*;
 use clap::Parser;
 
@@ -58,6 +59,7 @@ fn evaluation(cells: Vec<Cell>, seeds: Vec<u64>) -> Evaluation {
         seeds,
         cells,
         autopilot: "builtin".into(),
+        qosrt_version: "0.1.0 (binary 0123456789abcdef)".into(),
     }
 }
 
@@ -305,7 +307,10 @@ fn the_cli_flags_select_the_grid_and_refuse_what_does_not_fit() {
     assert_eq!(selection.worlds, [World::Ideal]);
     assert_eq!(selection.rates_fps, [2.0, 10.0]);
     assert_eq!(selection.winds, [GridWind::Calm, GridWind::Dryden12]);
-    assert_eq!(args.shard, Some(Shard { index: 2, count: 3 }));
+    assert_eq!(
+        args.shard,
+        Some(ShardSpec::Fixed(Shard { index: 2, count: 3 }))
+    );
     // --ideal is the ideal world only.
     let args = parse(&["--evaluate", "--ideal", "--runs", "3"]).unwrap();
     assert_eq!(args.runs, Some(3));
@@ -449,13 +454,16 @@ fn each_merge_error_is_detected_and_named() {
 
     // Another evaluation: each part of the identity is compared.
     type Change = fn(&mut Evaluation);
-    let changes: [(&str, Change); 6] = [
+    let changes: [(&str, Change); 7] = [
         ("the config", |e| e.config_path = "other.toml".into()),
         ("SHA-256", |e| e.config_sha256 = sha256_hex(b"other")),
         ("tracking", |e| e.tracking_s = 30.0),
         ("--fix", |e| e.fixed_levels.clear()),
         ("the seeds", |e| e.seeds = (1..6).collect()),
         ("cells", |e| e.cells[1].rate_fps = 10.0),
+        ("the qosrt binary", |e| {
+            e.qosrt_version = "0.1.0 (binary fedcba9876543210)".into()
+        }),
     ];
     for (expected, change) in changes {
         let mut other = files.clone();
@@ -616,4 +624,69 @@ fn a_run_record_without_the_touchdown_tilt_reads_as_none() {
     assert_eq!(record.touchdown_vertical_speed_m_s, None);
     assert_eq!(record.touchdown_tilt_deg, None);
     assert_eq!(record.touchdown_error_m, Some(0.05));
+}
+
+/// A partial merge prints what the shards it has hold, says which shards are missing, and marks
+/// every cell that lacks runs; it still refuses what is no hole (another sweep, a shard twice).
+#[test]
+fn a_partial_merge_marks_the_holes_and_refuses_the_rest() {
+    let evaluation = evaluation(cells(), (0..6).collect());
+    let outcomes = synthetic_outcomes(&evaluation);
+    let files = shard_files(&evaluation, &outcomes, 4);
+    let (whole, holes) = merge_partial(&files).unwrap();
+    assert!(holes.is_empty());
+    assert_eq!(whole, merge(&files).unwrap());
+
+    let without_third: Vec<_> = files
+        .iter()
+        .filter(|(_, f)| f.shard.index != 3)
+        .cloned()
+        .collect();
+    let (merged, holes) = merge_partial(&without_third).unwrap();
+    assert_eq!(holes.len(), 1);
+    assert!(
+        holes[0].contains("shard 3 of 4 is missing") && holes[0].contains("--shard 3/4"),
+        "{holes:?}"
+    );
+    // Each cell keeps exactly the runs the three files hold, in seed order.
+    let jobs: Vec<(usize, usize)> = shard_jobs(
+        evaluation.cells.len(),
+        evaluation.seeds.len(),
+        Shard { index: 3, count: 4 },
+    )
+    .collect();
+    for (cell, runs) in merged.runs.iter().enumerate() {
+        let lost: Vec<u64> = jobs
+            .iter()
+            .filter(|(c, _)| *c == cell)
+            .map(|&(_, seed)| evaluation.seeds[seed])
+            .collect();
+        let kept: Vec<u64> = runs.iter().map(|r| r.seed).collect();
+        let expected: Vec<u64> = evaluation
+            .seeds
+            .iter()
+            .copied()
+            .filter(|s| !lost.contains(s))
+            .collect();
+        assert_eq!(kept, expected, "cell {cell}");
+    }
+    let rows = rows(&merged);
+    let text = table(&merged.evaluation, &rows);
+    let marked = text.matches("(partial: ").count();
+    let short_cells = rows.iter().filter(|r| r.runs < 6).count();
+    assert!(short_cells > 0);
+    assert_eq!(marked, short_cells, "{text}");
+
+    let mut other = without_third.clone();
+    other[1].1.evaluation.tracking_s = 30.0;
+    assert!(matches!(
+        merge_partial(&other),
+        Err(MergeError::DifferentEvaluation { .. })
+    ));
+    let mut twice = without_third.clone();
+    twice.push(("copy.json".into(), without_third[0].1.clone()));
+    assert!(matches!(
+        merge_partial(&twice),
+        Err(MergeError::ShardTwice { .. })
+    ));
 }

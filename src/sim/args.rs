@@ -88,9 +88,11 @@ pub struct SimArgs {
     #[arg(long, value_name = "PATH,…", value_delimiter = ',', value_parser = crate::evaluate::grid::parse_grid_path, requires = "evaluate")]
     pub paths: Vec<PathKind>,
     /// Fly only shard I of N of the evaluation (the missions k with k mod N = I − 1) and write
-    /// its runs as a shard file (to --out, else stdout) for --merge.
-    #[arg(long, value_name = "I/N", value_parser = crate::evaluate::grid::parse_shard, requires = "evaluate")]
-    pub shard: Option<crate::evaluate::grid::Shard>,
+    /// its runs as a shard file (to --out, else stdout) for --merge. `auto`: the shard a Slurm
+    /// array task is (SLURM_ARRAY_TASK_ID and the array's bounds); `auto/N`: of N shards, as a
+    /// Kubernetes Indexed Job's JOB_COMPLETION_INDEX says (or as a check on Slurm's count).
+    #[arg(long, value_name = "I/N|auto[/N]", value_parser = crate::evaluate::batch::parse_shard_spec, requires = "evaluate")]
+    pub shard: Option<crate::evaluate::batch::ShardSpec>,
     /// Write the evaluation's runs as a shard file (the whole evaluation as shard 1/1).
     #[arg(long, value_name = "PATH", requires = "evaluate")]
     pub out: Option<PathBuf>,
@@ -101,6 +103,10 @@ pub struct SimArgs {
     /// the table the unsharded evaluation prints.
     #[arg(long, value_name = "SHARD.json", num_args = 1.., conflicts_with_all = ["evaluate", "evaluate_hazards", "evaluate_paths", "serve", "ideal", "runs", "seed", "svg", "tracking_s", "fixed_levels", "path", "wind_m_s", "dryden", "platform_speed_m_s"])]
     pub merge: Vec<PathBuf>,
+    /// With --merge: print the table even when shards are missing, their cells marked with the
+    /// runs they lack (the missing shards are still named, and the exit status says so).
+    #[arg(long, requires = "merge")]
+    pub allow_partial: bool,
     /// Evaluate hazard detection as the seed scored it (a hazard seen = a detection of its class
     /// within 2 m): every hazard-CNN rate × wind {0, 8, 12} m/s on the straight path, --runs
     /// seeds per cell (tracking 200 s, 32 hazards beside the track, unless --tracking-s says
