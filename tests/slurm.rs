@@ -356,32 +356,52 @@ fn merge(sweep_dir: &Path, extra: &[&str]) -> Output {
         .unwrap()
 }
 
-/// The unsharded sweep's table, as one machine flies it, and its wall time.
-fn unsharded(sweep: &str) -> (String, f64) {
+/// The unsharded sweep, as one machine flies it: its table and CSV (every figure in full
+/// precision), and its wall time.
+fn unsharded(sweep: &str) -> (Tables, f64) {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("whole.csv");
     let started = Instant::now();
-    let mut args = vec!["--evaluate"];
+    let mut args = vec!["--evaluate", "--csv", csv.to_str().unwrap()];
     args.extend(sweep.split_whitespace());
     let whole = qosrt_sim(&args);
     let whole_s = started.elapsed().as_secs_f64();
     assert!(whole.status.success(), "{}", text(&whole));
-    (String::from_utf8(whole.stdout).unwrap(), whole_s)
+    let tables = Tables {
+        markdown: String::from_utf8(whole.stdout).unwrap(),
+        csv: std::fs::read_to_string(csv).unwrap(),
+    };
+    (tables, whole_s)
+}
+
+/// A sweep's table as printed and as CSV.
+#[derive(Debug, PartialEq)]
+struct Tables {
+    markdown: String,
+    csv: String,
 }
 
 /// `sweep` through submit.sh, waited for: the merged table must be `whole_table`; prints each
 /// shard's wait from submission to start and the wall times, sharded and not.
-fn sweep_matches(cluster: &Cluster, name: &str, sweep: &str, whole_table: &str, whole_s: f64) {
+fn sweep_matches(cluster: &Cluster, name: &str, sweep: &str, whole: &Tables, whole_s: f64) {
     let sweep_dir = cluster.root().join(name);
     let started = Instant::now();
     let (array, merge_job) = cluster.submit(&sweep_dir, sweep);
     cluster.wait_until_gone(&[&array, &merge_job]);
     let sharded_s = started.elapsed().as_secs_f64();
-    let merged = std::fs::read_to_string(sweep_dir.join("table.md")).unwrap_or_else(|_| {
-        panic!(
-            "the merge job wrote no table:\n{}",
-            log(&cluster.root().join(format!("qosrt-merge-{merge_job}.out")))
-        )
-    });
-    assert_eq!(merged, whole_table);
+    let read = |file: &str| {
+        std::fs::read_to_string(sweep_dir.join(file)).unwrap_or_else(|_| {
+            panic!(
+                "the merge job wrote no {file}:\n{}",
+                log(&cluster.root().join(format!("qosrt-merge-{merge_job}.out")))
+            )
+        })
+    };
+    let merged = Tables {
+        markdown: read("table.md"),
+        csv: read("table.csv"),
+    };
+    assert_eq!(&merged, whole);
     let waits_s = cluster.queue_waits_s(&array);
     assert_eq!(waits_s.len(), SHARDS, "{waits_s:?}");
     eprintln!(
@@ -402,9 +422,9 @@ fn a_larger_sweep_on_slurm_costs_little_more_than_unsharded() {
     }
     const LARGER: &str =
         "--worlds realistic --rates 10 --winds 0,12 --paths straight,turn180 --runs 6";
-    let (whole_table, whole_s) = unsharded(LARGER);
+    let (whole, whole_s) = unsharded(LARGER);
     let cluster = Cluster::start();
-    sweep_matches(&cluster, "larger", LARGER, &whole_table, whole_s);
+    sweep_matches(&cluster, "larger", LARGER, &whole, whole_s);
 }
 
 #[test]
@@ -413,12 +433,13 @@ fn a_sweep_on_slurm_merges_to_the_unsharded_table_and_a_killed_task_is_a_named_h
         eprintln!("skipping the live Slurm sweep: {why}");
         return;
     }
-    let (whole_table, whole_s) = unsharded(SWEEP);
-    assert!(whole_table.contains("| builtin | ideal |"), "{whole_table}");
+    let (whole, whole_s) = unsharded(SWEEP);
+    assert!(whole.markdown.contains("| builtin | ideal |"), "{whole:?}");
     let cluster = Cluster::start();
 
-    // 1. The array and the merge after it: the merged table is the unsharded one.
-    sweep_matches(&cluster, "sweep", SWEEP, &whole_table, whole_s);
+    // 1. The array and the merge after it: the merged table is the unsharded one, its CSV to
+    // the last digit.
+    sweep_matches(&cluster, "sweep", SWEEP, &whole, whole_s);
 
     // 2. A task killed: the merge names the hole; the requeued task fills it.
     let sweep_dir = cluster.root().join("killed");
@@ -458,6 +479,6 @@ fn a_sweep_on_slurm_merges_to_the_unsharded_table_and_a_killed_task_is_a_named_h
     cluster.wait_until_gone(&[&killed]);
     let filled = merge(&sweep_dir, &[]);
     assert!(filled.status.success(), "{}", text(&filled));
-    assert_eq!(String::from_utf8(filled.stdout).unwrap(), whole_table);
+    assert_eq!(String::from_utf8(filled.stdout).unwrap(), whole.markdown);
     cluster.run("scancel", &[&merge_job]);
 }
