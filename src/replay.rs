@@ -6,7 +6,7 @@ use crate::load::load_model;
 use runtime::mission::{replay, ReplayOptions, ReplayReport};
 use runtime::plugins::builtin_registry;
 use runtime::record::extract_config;
-use runtime::record::read_recording_file;
+use runtime::record::RecordingReader;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -31,7 +31,8 @@ pub struct ReplayArgs {
 }
 
 pub fn run(args: &ReplayArgs) -> ExitCode {
-    let recording = match read_recording_file(&args.file) {
+    // Its header and config files only: the replay streams the messages itself.
+    let recording = match RecordingReader::open(&args.file) {
         Ok(recording) => recording,
         Err(error) => {
             eprintln!("error: {}: {error}", args.file.display());
@@ -65,7 +66,7 @@ pub fn run(args: &ReplayArgs) -> ExitCode {
     let options = ReplayOptions {
         fixed_levels: (!args.fixed_levels.is_empty()).then(|| args.fixed_levels.clone()),
     };
-    let report = match replay(&recording, model, &registry, &options) {
+    let report = match replay(&args.file, model, &registry, &options) {
         Ok(report) => report,
         Err(error) => {
             eprintln!("error: {error}");

@@ -76,3 +76,62 @@ fn a_file_that_is_not_a_recording_is_named() {
     assert_eq!(out.status.code(), Some(2), "{}", output_text(&out));
     assert!(output_text(&out).contains("--record"));
 }
+
+/// The peak resident memory of `qosrt` run with `args` (VmHWM, read until it exits), with its
+/// output.
+fn peak_resident_bytes(args: &[&str]) -> (u64, std::process::Output) {
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_qosrt"))
+        .args(args)
+        .current_dir(common::repo_root())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let status = format!("/proc/{}/status", child.id());
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let sampler = {
+        let done = done.clone();
+        std::thread::spawn(move || {
+            let mut peak_kb = 0u64;
+            while !done.load(std::sync::atomic::Ordering::SeqCst) {
+                let high_water_kb = std::fs::read_to_string(&status).ok().and_then(|text| {
+                    text.lines()
+                        .find_map(|l| l.strip_prefix("VmHWM:"))
+                        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
+                });
+                peak_kb = peak_kb.max(high_water_kb.unwrap_or(0));
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+            peak_kb * 1024
+        })
+    };
+    let output = child.wait_with_output().unwrap();
+    done.store(true, std::sync::atomic::Ordering::SeqCst);
+    (sampler.join().unwrap(), output)
+}
+
+/// A replay streams the recording: it holds the recorded outputs, not the frames, so it needs
+/// far less memory than the file is large, and still finds no difference.
+#[test]
+fn a_replay_needs_far_less_memory_than_its_recording_is_large() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("long.mcap");
+    let file_arg = file.to_str().unwrap();
+    let sim = qosrt(&["sim", "--tracking-s", "60", "--record", file_arg]);
+    assert!(sim.status.success(), "{}", output_text(&sim));
+    let size_bytes = std::fs::metadata(&file).unwrap().len();
+    let (peak_bytes, replay) = peak_resident_bytes(&["replay", file_arg]);
+    let text = output_text(&replay);
+    assert!(replay.status.success(), "{text}");
+    assert!(text.contains("no difference"), "{text}");
+    eprintln!(
+        "replay of a {:.0} MB recording: {:.0} MB resident at its peak",
+        size_bytes as f64 / 1e6,
+        peak_bytes as f64 / 1e6
+    );
+    assert!(peak_bytes > 0, "the replay's memory was not read");
+    assert!(
+        peak_bytes * 2 < size_bytes,
+        "{peak_bytes} bytes resident for a {size_bytes}-byte recording"
+    );
+}

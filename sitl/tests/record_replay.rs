@@ -69,9 +69,8 @@ fn recorded() -> &'static Recorded {
 }
 
 fn replay_with(recording_path: &Path, options: &ReplayOptions) -> ReplayReport {
-    let recording = read_recording_file(recording_path).unwrap();
     let (model, registry) = reference();
-    replay(&recording, model, &registry, options).unwrap()
+    replay(recording_path, model, &registry, options).unwrap()
 }
 
 fn channel<'a>(report: &'a ReplayReport, topic: &str) -> &'a ChannelDiff {

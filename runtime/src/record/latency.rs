@@ -8,7 +8,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use mavlink::dialects::common::MavMessage;
 
 use super::channels::{self as ch, MavlinkRecord};
-use super::reader::Recording;
+use super::reader::{RecordedMessage, Recording};
 use crate::scheduler::stats::Histogram;
 use crate::scheduler::DurationSummary;
 
@@ -17,28 +17,56 @@ const MATCH_MS: u64 = 1;
 
 /// From each recorded frame's capture to the first velocity setpoint that answers it.
 pub fn capture_to_setpoint(recording: &Recording) -> DurationSummary {
-    // Capture instants by whole millisecond, as a setpoint's `time_boot_ms` carries them.
-    let captures_ns: BTreeMap<u64, u64> = recording
-        .topic(ch::CAMERA_IMAGE.topic)
-        .map(|frame| (frame.publish_time_ns / 1_000_000, frame.publish_time_ns))
-        .collect();
-    let mut answered = BTreeSet::new();
-    let mut delays = Histogram::default();
-    for message in recording.topic(ch::MAVLINK_OUT.topic) {
-        let Some(stamp_ms) = setpoint_stamp_ms(&message.data) else {
-            continue;
-        };
-        let capture = captures_ns
-            .range(stamp_ms.saturating_sub(MATCH_MS)..=stamp_ms + MATCH_MS)
-            .map(|(_, &capture_ns)| capture_ns)
-            .find(|&capture_ns| capture_ns < message.log_time_ns);
-        if let Some(capture_ns) = capture {
-            if answered.insert(capture_ns) {
-                delays.record(message.log_time_ns - capture_ns);
+    let mut stamps = CaptureStamps::default();
+    for message in &recording.messages {
+        stamps.add(message);
+    }
+    stamps.capture_to_setpoint()
+}
+
+/// What capture to setpoint needs of a recording, gathered as its messages stream by: each
+/// frame's capture and each velocity setpoint's stamp and time, not the frames.
+#[derive(Debug, Default)]
+pub struct CaptureStamps {
+    captures_ns: Vec<u64>,
+    /// (the capture the setpoint carries, in whole ms; when it was sent)
+    setpoints: Vec<(u64, u64)>,
+}
+
+impl CaptureStamps {
+    pub fn add(&mut self, message: &RecordedMessage) {
+        if message.topic == ch::CAMERA_IMAGE.topic {
+            self.captures_ns.push(message.publish_time_ns);
+        } else if message.topic == ch::MAVLINK_OUT.topic {
+            if let Some(stamp_ms) = setpoint_stamp_ms(&message.data) {
+                self.setpoints.push((stamp_ms, message.log_time_ns));
             }
         }
     }
-    delays.summary()
+
+    /// From each frame's capture to the first setpoint that answers it.
+    pub fn capture_to_setpoint(&self) -> DurationSummary {
+        // Capture instants by whole millisecond, as a setpoint's `time_boot_ms` carries them.
+        let captures_ns: BTreeMap<u64, u64> = self
+            .captures_ns
+            .iter()
+            .map(|&capture_ns| (capture_ns / 1_000_000, capture_ns))
+            .collect();
+        let mut answered = BTreeSet::new();
+        let mut delays = Histogram::default();
+        for &(stamp_ms, sent_ns) in &self.setpoints {
+            let capture = captures_ns
+                .range(stamp_ms.saturating_sub(MATCH_MS)..=stamp_ms + MATCH_MS)
+                .map(|(_, &capture_ns)| capture_ns)
+                .find(|&capture_ns| capture_ns < sent_ns);
+            if let Some(capture_ns) = capture {
+                if answered.insert(capture_ns) {
+                    delays.record(sent_ns - capture_ns);
+                }
+            }
+        }
+        delays.summary()
+    }
 }
 
 /// A recorded velocity setpoint's `time_boot_ms`; `None` for anything else.

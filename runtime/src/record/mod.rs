@@ -11,7 +11,9 @@ pub mod latency;
 pub mod reader;
 pub mod recorder;
 
-pub use reader::{read_recording, read_recording_file, RecordedMessage, Recording};
+pub use reader::{
+    read_recording, read_recording_file, RecordedMessage, Recording, RecordingReader,
+};
 pub use recorder::{Recorder, RecorderOptions, RecordingSummary};
 
 use crate::config::{MissionConfig, MissionPlan};

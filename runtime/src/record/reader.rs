@@ -2,8 +2,10 @@
 //! is whole (a recording cut off by a crash reads up to its last complete chunk).
 
 use super::{ConfigFile, RecordError, RecordingHeader, FORMAT_VERSION, HEADER_METADATA};
-use mcap::read::{LinearReader, MessageStream, Options};
 use mcap::records::Record;
+use mcap::sans_io::linear_reader;
+use std::collections::HashMap;
+use std::io::{Read, Seek};
 
 /// One recorded message.
 #[derive(Debug, Clone, PartialEq)]
@@ -42,78 +44,241 @@ impl Recording {
     }
 }
 
-/// Reads a recording from its bytes.
-pub fn read_recording(bytes: &[u8]) -> Result<Recording, RecordError> {
-    if !bytes.starts_with(mcap::MAGIC) {
-        return Err(RecordError::NotARecording(
-            "not an MCAP file (it does not begin with MCAP's magic bytes)".into(),
-        ));
-    }
-    let mut header = None;
-    let mut config_files = Vec::new();
-    let records = LinearReader::new_with_options(bytes, Options::IgnoreEndMagic.into())
-        .map_err(RecordError::Mcap)?;
-    // The header and the config files come first; a cut-off file still has them.
-    for record in records {
-        match record {
-            Ok(Record::Metadata(metadata)) if metadata.name == HEADER_METADATA => {
-                let json = metadata.metadata.get("header").ok_or_else(|| {
-                    RecordError::NotARecording("the qosrt metadata has no header".into())
-                })?;
-                let parsed: RecordingHeader = serde_json::from_str(json).map_err(|e| {
-                    RecordError::NotARecording(format!("its header does not parse: {e}"))
-                })?;
-                if parsed.format_version != FORMAT_VERSION {
-                    return Err(RecordError::NotARecording(format!(
-                        "format version {} (this build reads {FORMAT_VERSION})",
-                        parsed.format_version
-                    )));
+/// A recording read as a stream, one chunk at a time: its header and config files at once, then
+/// its messages in file order, so a replay holds only what it needs of a long flight. The
+/// iterator ends at the file's end, or at its last complete chunk where the file was cut off
+/// ([`RecordingReader::truncated`] then says why).
+pub struct RecordingReader<R: Read> {
+    pub header: RecordingHeader,
+    pub config_files: Vec<ConfigFile>,
+    records: Records<R>,
+    /// The first message, read while looking for the header.
+    first: Option<RecordedMessage>,
+}
+
+/// The file's records as they are read.
+struct Records<R: Read> {
+    source: R,
+    reader: linear_reader::LinearReader,
+    /// Each channel's topic, by its id.
+    topics: HashMap<u16, String>,
+    /// Anything of an MCAP file read: before that, an error means the file is none.
+    started: bool,
+    truncated: Option<String>,
+    ended: bool,
+}
+
+/// What the stream yields next.
+enum Next {
+    Message(RecordedMessage),
+    Header(Box<RecordingHeader>),
+    Config(ConfigFile),
+    Other,
+}
+
+impl<R: Read> RecordingReader<R> {
+    /// Reads up to the first message: the header (refused where it is missing or of another
+    /// format) and the config files.
+    pub fn new(source: R) -> Result<Self, RecordError> {
+        let mut records = Records {
+            source,
+            reader: linear_reader::LinearReader::new_with_options(
+                linear_reader::LinearReaderOptions::default().with_skip_end_magic(true),
+            ),
+            topics: HashMap::new(),
+            started: false,
+            truncated: None,
+            ended: false,
+        };
+        let mut header = None;
+        let mut config_files = Vec::new();
+        let mut first = None;
+        while let Some(next) = records.next_record()? {
+            match next {
+                Next::Header(parsed) => header = Some(*parsed),
+                Next::Config(file) => config_files.push(file),
+                Next::Message(message) => {
+                    first = Some(message);
+                    break;
                 }
-                header = Some(parsed);
-            }
-            Ok(Record::Attachment { header, data, .. }) => config_files.push(ConfigFile {
-                path: header.name,
-                data: data.into_owned(),
-            }),
-            Ok(Record::Chunk { .. } | Record::Message { .. }) | Err(_) => break,
-            Ok(_) => {}
-        }
-    }
-    let header = header.ok_or_else(|| {
-        RecordError::NotARecording("no qosrt header (an MCAP file from another program?)".into())
-    })?;
-    let mut messages = Vec::new();
-    let mut truncated = None;
-    let stream = MessageStream::new_with_options(bytes, Options::IgnoreEndMagic.into())
-        .map_err(RecordError::Mcap)?;
-    for message in stream {
-        match message {
-            Ok(message) => messages.push(RecordedMessage {
-                topic: message.channel.topic.clone(),
-                log_time_ns: message.log_time,
-                publish_time_ns: message.publish_time,
-                sequence: message.sequence,
-                data: message.data.into_owned(),
-            }),
-            Err(error) => {
-                truncated = Some(error.to_string());
-                break;
+                Next::Other => {}
             }
         }
+        let header = header.ok_or_else(|| {
+            RecordError::NotARecording(
+                "no qosrt header (an MCAP file from another program?)".into(),
+            )
+        })?;
+        Ok(Self {
+            header,
+            config_files,
+            records,
+            first,
+        })
     }
+
+    /// Why the file ended before its end, once the messages are read.
+    pub fn truncated(&self) -> Option<&str> {
+        self.records.truncated.as_deref()
+    }
+}
+
+impl<R: Read> Records<R> {
+    /// The next record that matters; `None` at the end of the file, or where it was cut off.
+    /// Only a file that is not a recording at all is an error.
+    fn next_record(&mut self) -> Result<Option<Next>, RecordError> {
+        if self.ended {
+            return Ok(None);
+        }
+        loop {
+            let event = match self.reader.next_event() {
+                None => {
+                    self.ended = true;
+                    return Ok(None);
+                }
+                Some(Err(error)) => {
+                    self.ended = true;
+                    if !self.started {
+                        return Err(RecordError::NotARecording(format!(
+                            "not a readable MCAP file: {error}"
+                        )));
+                    }
+                    self.truncated = Some(error.to_string());
+                    return Ok(None);
+                }
+                Some(Ok(event)) => event,
+            };
+            let (opcode, data) = match event {
+                linear_reader::LinearReadEvent::ReadRequest(need) => {
+                    let read = self
+                        .source
+                        .read(self.reader.insert(need))
+                        .map_err(RecordError::Io)?;
+                    self.reader.notify_read(read);
+                    continue;
+                }
+                linear_reader::LinearReadEvent::Record { opcode, data } => (opcode, data),
+            };
+            self.started = true;
+            let record = match mcap::parse_record(opcode, data) {
+                Ok(record) => record,
+                Err(error) => {
+                    self.ended = true;
+                    self.truncated = Some(error.to_string());
+                    return Ok(None);
+                }
+            };
+            return Ok(Some(match record {
+                Record::Channel(channel) => {
+                    self.topics.insert(channel.id, channel.topic);
+                    Next::Other
+                }
+                Record::Message { header, data } => Next::Message(RecordedMessage {
+                    topic: self
+                        .topics
+                        .get(&header.channel_id)
+                        .cloned()
+                        .unwrap_or_default(),
+                    log_time_ns: header.log_time,
+                    publish_time_ns: header.publish_time,
+                    sequence: header.sequence,
+                    data: data.into_owned(),
+                }),
+                Record::Metadata(metadata) if metadata.name == HEADER_METADATA => {
+                    Next::Header(Box::new(parse_header(&metadata.metadata)?))
+                }
+                Record::Attachment { header, data, .. } => Next::Config(ConfigFile {
+                    path: header.name,
+                    data: data.into_owned(),
+                }),
+                _ => Next::Other,
+            }));
+        }
+    }
+}
+
+impl<R: Read> Iterator for RecordingReader<R> {
+    type Item = RecordedMessage;
+
+    fn next(&mut self) -> Option<RecordedMessage> {
+        if let Some(first) = self.first.take() {
+            return Some(first);
+        }
+        loop {
+            match self.records.next_record() {
+                Ok(Some(Next::Message(message))) => return Some(message),
+                Ok(Some(_)) => continue,
+                Ok(None) => return None,
+                Err(error) => {
+                    self.records.truncated = Some(error.to_string());
+                    return None;
+                }
+            }
+        }
+    }
+}
+
+impl RecordingReader<std::io::BufReader<std::fs::File>> {
+    /// Opens `path` as a recording.
+    pub fn open(path: &std::path::Path) -> Result<Self, RecordError> {
+        let read_error = |source| RecordError::Read {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut file = std::fs::File::open(path).map_err(read_error)?;
+        let mut magic = [0u8; 8];
+        let magic_len = file.read(&mut magic).map_err(read_error)?;
+        check_magic(&magic[..magic_len])?;
+        file.rewind().map_err(read_error)?;
+        Self::new(std::io::BufReader::with_capacity(1 << 20, file))
+    }
+}
+
+fn check_magic(bytes: &[u8]) -> Result<(), RecordError> {
+    if bytes.starts_with(mcap::MAGIC) {
+        Ok(())
+    } else {
+        Err(RecordError::NotARecording(
+            "not an MCAP file (it does not begin with MCAP's magic bytes)".into(),
+        ))
+    }
+}
+
+fn parse_header(
+    metadata: &std::collections::BTreeMap<String, String>,
+) -> Result<RecordingHeader, RecordError> {
+    let json = metadata
+        .get("header")
+        .ok_or_else(|| RecordError::NotARecording("the qosrt metadata has no header".into()))?;
+    let parsed: RecordingHeader = serde_json::from_str(json)
+        .map_err(|e| RecordError::NotARecording(format!("its header does not parse: {e}")))?;
+    if parsed.format_version != FORMAT_VERSION {
+        return Err(RecordError::NotARecording(format!(
+            "format version {} (this build reads {FORMAT_VERSION})",
+            parsed.format_version
+        )));
+    }
+    Ok(parsed)
+}
+
+/// Reads a recording from its bytes, whole.
+pub fn read_recording(bytes: &[u8]) -> Result<Recording, RecordError> {
+    check_magic(bytes)?;
+    collect(RecordingReader::new(bytes)?)
+}
+
+/// Every message of a stream, in memory.
+fn collect<R: Read>(mut stream: RecordingReader<R>) -> Result<Recording, RecordError> {
+    let messages = stream.by_ref().collect();
     Ok(Recording {
-        header,
-        config_files,
+        truncated: stream.records.truncated.take(),
+        header: stream.header,
+        config_files: stream.config_files,
         messages,
-        truncated,
     })
 }
 
-/// Reads `path` as a recording.
+/// Reads `path` as a recording, whole (a replay streams it: [`RecordingReader::open`]).
 pub fn read_recording_file(path: &std::path::Path) -> Result<Recording, RecordError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    read_recording(&bytes)
+    collect(RecordingReader::open(path)?)
 }

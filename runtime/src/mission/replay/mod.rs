@@ -12,16 +12,20 @@ use crate::camera::{CapturedFrame, MemorySource};
 use crate::clock::Timestamp;
 use crate::energy::MissionModel;
 use crate::link::{LinkConfig, MavlinkLink, ReplayFeed};
-use crate::record::channels::{self as ch, MavlinkBatch, Role, StepRecord};
-use crate::record::reader::{read_recording, RecordedMessage, Recording};
+use crate::record::channels::{self as ch, MavlinkBatch, StepRecord};
+use crate::record::latency::CaptureStamps;
+use crate::record::reader::{RecordedMessage, RecordingReader};
 use crate::record::recorder::{Recorder, RecorderOptions};
 use crate::record::RecordError;
 use crate::registry::PluginRegistry;
 use crate::scheduler::SchedulerBuilder;
 use crate::topics::{CameraFrame, DepthFrame, DEPTH_FRAME};
+use compare::{compare, messages_at, OutputPrints};
 use serde::Serialize;
-use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
+
+mod compare;
 
 /// Why a recorded message is unreadable.
 #[derive(Debug, thiserror::Error)]
@@ -98,14 +102,19 @@ impl ReplayReport {
     }
 }
 
-/// Re-runs the recorded mission with `model` (the recorded config, or another) and compares.
+/// Re-runs the recording at `path` with `model` (the recorded config, or another) and compares.
+/// The recording is read as a stream: each frame and telemetry batch is fed to the tasks and
+/// let go; of the recorded outputs only their times and fingerprints are kept, the replay's
+/// own outputs go to a temporary file compared the same way, and a channel's first differing
+/// pair is read back to name its fields. Memory does not grow with the flight.
 pub fn replay(
-    recording: &Recording,
+    path: &Path,
     mut model: MissionModel,
     registry: &PluginRegistry,
     options: &ReplayOptions,
 ) -> Result<ReplayReport, ReplayError> {
-    let header = &recording.header;
+    let mut recording = RecordingReader::open(path)?;
+    let header = &recording.header.clone();
     // The phases flown for as long as they were, where the config has the same phases.
     let phases = &mut model.config.mission.phases;
     if phases.len() == header.phase_durations_s.len() {
@@ -147,9 +156,10 @@ pub fn replay(
         runner_options,
     )
     .map_err(ReplayError::Setup)?;
+    let outputs = ReplayOutputs::new()?;
     let recorder = Recorder::start(
         &RecorderOptions {
-            in_memory: true,
+            file: Some(outputs.path.clone()),
             outputs_only: true,
             ..RecorderOptions::default()
         },
@@ -164,11 +174,25 @@ pub fn replay(
             time_s: message.log_time_ns as f64 * 1e-9,
             source: why,
         };
-    let steps_recorded = recording.topic(ch::STEP.topic).count();
+    // What is compared afterwards: the recorded outputs' fingerprints, and what the flight's
+    // capture to setpoint needs.
+    let mut recorded_outputs = OutputPrints::default();
+    let mut stamps = CaptureStamps::default();
+    let mut steps_recorded = 0;
     let mut steps_replayed = 0;
     let mut replayed_until_ns = 0;
     let mut stopped = None;
-    for message in &recording.messages {
+    for message in recording.by_ref() {
+        let message = &message;
+        recorded_outputs.add(message);
+        stamps.add(message);
+        if message.topic == ch::STEP.topic {
+            steps_recorded += 1;
+        }
+        if stopped.is_some() {
+            // The replay has stopped; the rest is read only to count its steps.
+            continue;
+        }
         match message.topic.as_str() {
             t if t == ch::MAVLINK_IN.topic => {
                 let batch: MavlinkBatch = serde_json::from_slice(&message.data)
@@ -208,7 +232,7 @@ pub fn replay(
                     .map_err(|e| bad(ch::STEP.topic, message, e.into()))?;
                 if let Err(error) = runner.step(step.now_s, step.lockstep_ns) {
                     stopped = Some(format!("at t = {:.3} s: {error}", step.now_s));
-                    break;
+                    continue;
                 }
                 steps_replayed += 1;
                 replayed_until_ns = message.log_time_ns;
@@ -217,218 +241,47 @@ pub fn replay(
         }
     }
     runner.stop();
-    let replayed = runner
-        .finish_recording()
-        .transpose()?
-        .and_then(|summary| summary.data)
-        .unwrap_or_default();
-    let replayed = read_recording(&replayed)?;
+    runner.finish_recording().transpose()?;
+    let replayed_outputs = OutputPrints::of_file(&outputs.path)?;
+    let channels = compare(
+        &recorded_outputs,
+        &replayed_outputs,
+        replayed_until_ns,
+        |first_at| {
+            Ok((
+                messages_at(path, first_at)?,
+                messages_at(&outputs.path, first_at)?,
+            ))
+        },
+    )?;
     Ok(ReplayReport {
         steps_recorded,
         steps_replayed,
         replayed_until_s: replayed_until_ns as f64 * 1e-9,
-        recording_truncated: recording.truncated.clone(),
-        capture_to_setpoint: crate::record::latency::capture_to_setpoint(recording),
+        recording_truncated: recording.truncated().map(str::to_string),
+        capture_to_setpoint: stamps.capture_to_setpoint(),
         stopped,
-        channels: compare(recording, &replayed, replayed_until_ns),
+        channels,
     })
 }
 
-/// Every output channel of either recording, compared message by message up to `until_ns`.
-pub fn compare(recorded: &Recording, replayed: &Recording, until_ns: u64) -> Vec<ChannelDiff> {
-    let topics: BTreeSet<&str> = recorded
-        .messages
-        .iter()
-        .chain(&replayed.messages)
-        .map(|m| m.topic.as_str())
-        .filter(|topic| ch::channel(topic).is_some_and(|c| c.role == Role::Output))
-        .collect();
-    topics
-        .into_iter()
-        .map(|topic| {
-            let upto = |recording: &'_ Recording| -> Vec<RecordedMessage> {
-                recording
-                    .topic(topic)
-                    .filter(|m| m.log_time_ns <= until_ns)
-                    .cloned()
-                    .collect()
-            };
-            diff_channel(topic, &upto(recorded), &upto(replayed))
-        })
-        .collect()
+/// The replay's own outputs: a temporary MCAP file, removed when the replay is done.
+struct ReplayOutputs {
+    path: PathBuf,
 }
 
-fn diff_channel(
-    topic: &str,
-    recorded: &[RecordedMessage],
-    replayed: &[RecordedMessage],
-) -> ChannelDiff {
-    let mut diff = ChannelDiff {
-        topic: topic.to_string(),
-        recorded: recorded.len(),
-        replayed: replayed.len(),
-        differing: 0,
-        first_difference_s: None,
-        last_difference_s: None,
-        first_fields: Vec::new(),
-    };
-    for index in 0..recorded.len().max(replayed.len()) {
-        let (a, b) = (recorded.get(index), replayed.get(index));
-        let same = matches!((a, b), (Some(a), Some(b)) if a.data == b.data && a.log_time_ns == b.log_time_ns);
-        if same {
-            continue;
-        }
-        diff.differing += 1;
-        let time_ns = a.or(b).map_or(0, |m| m.log_time_ns);
-        let time_s = time_ns as f64 * 1e-9;
-        diff.last_difference_s = Some(time_s);
-        if diff.first_difference_s.is_none() {
-            diff.first_difference_s = Some(time_s);
-            diff.first_fields = match (a, b) {
-                (Some(a), Some(b)) => field_differences(a, b),
-                (Some(_), None) => vec!["(not produced by the replay)".into()],
-                _ => vec!["(not in the recording)".into()],
-            };
-        }
-    }
-    diff
-}
-
-/// At most this many fields are named per difference.
-const MAX_FIELDS: usize = 6;
-
-/// The fields of two messages that differ, as `path: recorded → replayed` (JSON), or what else
-/// differs.
-fn field_differences(a: &RecordedMessage, b: &RecordedMessage) -> Vec<String> {
-    let mut fields = Vec::new();
-    if a.log_time_ns != b.log_time_ns {
-        fields.push(format!(
-            "time: {:.6} s → {:.6} s",
-            a.log_time_ns as f64 * 1e-9,
-            b.log_time_ns as f64 * 1e-9
-        ));
-    }
-    match (
-        serde_json::from_slice::<serde_json::Value>(&a.data),
-        serde_json::from_slice::<serde_json::Value>(&b.data),
-    ) {
-        (Ok(x), Ok(y)) => json_differences("", &x, &y, &mut fields),
-        _ if a.data != b.data => fields.push("(binary message differs)".into()),
-        _ => {}
-    }
-    fields.truncate(MAX_FIELDS);
-    fields
-}
-
-fn json_differences(
-    path: &str,
-    a: &serde_json::Value,
-    b: &serde_json::Value,
-    out: &mut Vec<String>,
-) {
-    use serde_json::Value;
-    if out.len() >= MAX_FIELDS || a == b {
-        return;
-    }
-    match (a, b) {
-        (Value::Object(x), Value::Object(y)) => {
-            let keys: BTreeSet<&String> = x.keys().chain(y.keys()).collect();
-            for key in keys {
-                let (p, q) = (
-                    x.get(key).unwrap_or(&Value::Null),
-                    y.get(key).unwrap_or(&Value::Null),
-                );
-                json_differences(&format!("{path}.{key}"), p, q, out);
-            }
-        }
-        (Value::Array(x), Value::Array(y)) if x.len() == y.len() => {
-            for (i, (p, q)) in x.iter().zip(y).enumerate() {
-                json_differences(&format!("{path}[{i}]"), p, q, out);
-            }
-        }
-        _ => out.push(format!(
-            "{}: {} → {}",
-            path.strip_prefix('.').unwrap_or(path),
-            shortened(a),
-            shortened(b)
-        )),
+impl ReplayOutputs {
+    fn new() -> Result<Self, ReplayError> {
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let serial = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let path =
+            std::env::temp_dir().join(format!("qosrt-replay-{}-{serial}.mcap", std::process::id()));
+        Ok(Self { path })
     }
 }
 
-/// A value as JSON, cut to a readable length.
-fn shortened(value: &serde_json::Value) -> String {
-    const MAX_CHARS: usize = 60;
-    let text = value.to_string();
-    match text.char_indices().nth(MAX_CHARS) {
-        Some((cut, _)) => format!("{}…", &text[..cut]),
-        None => text,
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn message(topic: &str, time_ns: u64, json: &str) -> RecordedMessage {
-        RecordedMessage {
-            topic: topic.into(),
-            log_time_ns: time_ns,
-            publish_time_ns: time_ns,
-            sequence: 0,
-            data: json.as_bytes().to_vec(),
-        }
-    }
-
-    #[test]
-    fn a_difference_is_placed_in_time_and_named_by_field() {
-        let topic = "/bus/landing/setpoint";
-        let recorded = [
-            message(
-                topic,
-                1_000_000_000,
-                r#"{"mode":"Descend","v":[0.5,0.0,1.0]}"#,
-            ),
-            message(
-                topic,
-                2_000_000_000,
-                r#"{"mode":"Descend","v":[0.5,0.1,1.0]}"#,
-            ),
-            message(
-                topic,
-                3_000_000_000,
-                r#"{"mode":"Final","v":[0.0,0.0,2.0]}"#,
-            ),
-        ];
-        let replayed = [
-            message(
-                topic,
-                1_000_000_000,
-                r#"{"mode":"Descend","v":[0.5,0.0,1.0]}"#,
-            ),
-            message(
-                topic,
-                2_000_000_000,
-                r#"{"mode":"Descend","v":[0.5,0.2,1.0]}"#,
-            ),
-        ];
-        let diff = diff_channel(topic, &recorded, &replayed);
-        assert_eq!((diff.recorded, diff.replayed, diff.differing), (3, 2, 2));
-        assert_eq!(diff.first_difference_s, Some(2.0));
-        assert_eq!(diff.last_difference_s, Some(3.0));
-        assert_eq!(diff.first_fields, ["v[1]: 0.1 → 0.2"]);
-        let same = diff_channel(topic, &recorded, &recorded);
-        assert!(same.identical(), "{same:?}");
-    }
-
-    #[test]
-    fn a_message_at_another_time_differs_even_with_the_same_content() {
-        let topic = "/qosrt/governor";
-        let diff = diff_channel(
-            topic,
-            &[message(topic, 1_000_000_000, "{}")],
-            &[message(topic, 1_500_000_000, "{}")],
-        );
-        assert_eq!(diff.differing, 1);
-        assert_eq!(diff.first_fields, ["time: 1.000000 s → 1.500000 s"]);
+impl Drop for ReplayOutputs {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
     }
 }
