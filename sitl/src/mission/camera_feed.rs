@@ -6,12 +6,12 @@
 use std::collections::VecDeque;
 
 use algorithms::vision::render::SplitMix64;
-use runtime::bus::{Bus, Publisher};
+use runtime::bus::Publisher;
 use runtime::camera::{CapturedFrame, MemorySource};
 use runtime::clock::Timestamp;
 use runtime::config::TaskConfig;
 use runtime::registry::PluginRegistry;
-use runtime::scheduler::TaskScheduler;
+use runtime::scheduler::{TaskId, TaskScheduler};
 use runtime::topics::{CameraFrame, DepthFrame, CAMERA_FRAME, DEPTH_FRAME};
 use sim::camera::{PendingFrame, SimCamera, SimCameraConfig};
 use sim::realism::CameraRealism;
@@ -32,9 +32,9 @@ pub(super) struct CameraFeed {
     realism: CameraRealism,
     in_transit: VecDeque<InTransit>,
     latency_rng: SplitMix64,
-    /// The tasks that read camera frames (the catalogue says): a frame is rendered only when
-    /// one of them will look at it.
-    consumers: Vec<String>,
+    /// The tasks that read camera frames (the catalogue says), by their ids in the scheduler:
+    /// a frame is rendered only when one of them will look at it.
+    consumers: Vec<TaskId>,
     /// On the wall clock the scheduler does not say ahead: every frame is rendered.
     every_frame: bool,
     stereo: Option<(SimStereoCamera, Publisher<DepthFrame>)>,
@@ -52,7 +52,7 @@ impl CameraFeed {
         tasks: &[TaskConfig],
         registry: &PluginRegistry,
         stereo: StereoCameraConfig,
-        bus: &Bus,
+        scheduler: &dyn TaskScheduler,
         seed: u64,
         every_frame: bool,
     ) -> Result<Self, SimError> {
@@ -62,12 +62,15 @@ impl CameraFeed {
         let consumers = tasks
             .iter()
             .filter(|t| registry.reads(t, CAMERA_FRAME.name()))
-            .map(|t| t.name.clone())
+            .filter_map(|t| scheduler.task_id(&t.name))
             .collect();
         let reads_depth = tasks.iter().any(|t| registry.reads(t, DEPTH_FRAME.name()));
         let stereo = if reads_depth {
             let camera = SimStereoCamera::new(stereo, seed).map_err(setup)?;
-            let depth_frames = bus.publisher::<DepthFrame>(DEPTH_FRAME).map_err(setup)?;
+            let depth_frames = scheduler
+                .bus()
+                .publisher::<DepthFrame>(DEPTH_FRAME)
+                .map_err(setup)?;
             Some((camera, depth_frames))
         } else {
             None
@@ -158,10 +161,9 @@ impl CameraFeed {
     fn wanted(&self, time_s: f64, scheduler: &dyn TaskScheduler) -> bool {
         let horizon_s = time_s + self.period_s + self.realism.latency_max_s;
         self.every_frame
-            || self.consumers.iter().any(|name| {
+            || self.consumers.iter().any(|&id| {
                 scheduler
-                    .task_id(name)
-                    .and_then(|id| scheduler.next_activation(id))
+                    .next_activation(id)
                     .is_some_and(|next| next.as_secs_f64() < horizon_s)
             })
     }

@@ -102,7 +102,7 @@ impl<'a> Harness<'a> {
             &model.config.tasks,
             registry,
             options.stereo,
-            scheduler.bus(),
+            &*scheduler,
             seed,
             options.real_time,
         )?;
