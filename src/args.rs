@@ -1,6 +1,6 @@
 //! Arguments several subcommands share: recording and the live view, `--fix`, `N,E`.
 
-use runtime::record::RecorderOptions;
+use runtime::record::{FramePolicy, RecorderOptions};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -15,6 +15,11 @@ pub struct RecordArgs {
     /// 127.0.0.1:8765; in Foxglove: Open connection → Foxglove WebSocket → ws://ADDR).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
     pub foxglove: Option<SocketAddr>,
+    /// Which camera frames the recording (and the live view) keeps: every (the default; the
+    /// whole mission replays) or none (telemetry, decisions and outputs: a few MB a minute
+    /// instead of 160; the tasks that read frames cannot be replayed).
+    #[arg(long, value_name = "every|none", default_value = "every")]
+    pub record_frames: FramePolicy,
 }
 
 impl RecordArgs {
@@ -23,6 +28,7 @@ impl RecordArgs {
         (self.record.is_some() || self.foxglove.is_some()).then(|| RecorderOptions {
             file: self.record.clone(),
             live: self.foxglove,
+            frames: self.record_frames,
             ..RecorderOptions::default()
         })
     }

@@ -95,6 +95,13 @@ pub fn describe(report: &ReplayReport, file: &Path) -> String {
             "the recording ends early (cut off mid-flight?): {why}; replayed up to its last complete step\n"
         );
     }
+    if !report.without_frames.is_empty() {
+        out += &format!(
+            "the recording kept no camera frames (--record-frames none): {} saw none, so their \
+             outputs and what follows from them differ; the rest is compared as flown\n",
+            report.without_frames.join(", ")
+        );
+    }
     if let Some(why) = &report.stopped {
         out += &format!("the replay stopped {why}\n");
     }

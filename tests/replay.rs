@@ -135,3 +135,68 @@ fn a_replay_needs_far_less_memory_than_its_recording_is_large() {
         "{peak_bytes} bytes resident for a {size_bytes}-byte recording"
     );
 }
+
+/// A recording without frames is a small fraction of one with them; its replay names the tasks
+/// that saw no frames, their outputs part from the flight's, and what comes from telemetry
+/// alone replays as flown.
+#[test]
+fn a_recording_without_frames_is_small_and_its_replay_says_what_it_cannot_compare() {
+    let dir = tempfile::tempdir().unwrap();
+    let record = |name: &str, frames: &str| {
+        let file = dir.path().join(name);
+        let sim = qosrt(&[
+            "sim",
+            "--tracking-s",
+            "3",
+            "--seed",
+            "2",
+            "--record",
+            file.to_str().unwrap(),
+            "--record-frames",
+            frames,
+        ]);
+        assert!(sim.status.success(), "{}", output_text(&sim));
+        file
+    };
+    let every = record("every.mcap", "every");
+    let none = record("none.mcap", "none");
+    let size = |file: &std::path::Path| std::fs::metadata(file).unwrap().len();
+    assert!(
+        size(&none) * 10 < size(&every),
+        "{} bytes without frames, {} with",
+        size(&none),
+        size(&every)
+    );
+
+    let replay = qosrt(&["replay", none.to_str().unwrap(), "--json"]);
+    assert_eq!(replay.status.code(), Some(5), "{}", output_text(&replay));
+    let report: serde_json::Value = serde_json::from_slice(&replay.stdout).unwrap();
+    assert_eq!(
+        report["without_frames"],
+        serde_json::json!(["detection", "hazard"]),
+        "{report:#}"
+    );
+    let channel = |topic: &str| {
+        report["channels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|c| c["topic"] == topic)
+            .unwrap_or_else(|| panic!("no {topic} in {report:#}"))
+            .clone()
+    };
+    assert!(
+        channel("/bus/vision/landing_marker")["differing"]
+            .as_u64()
+            .unwrap()
+            > 0
+    );
+    let pose = channel("/vehicle/pose");
+    assert!(pose["recorded"].as_u64().unwrap() > 100, "{pose}");
+    assert_eq!(pose["differing"], 0, "{pose}");
+    let text = output_text(&qosrt(&["replay", none.to_str().unwrap()]));
+    assert!(
+        text.contains("the recording kept no camera frames") && text.contains("detection, hazard"),
+        "{text}"
+    );
+}

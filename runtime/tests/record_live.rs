@@ -24,6 +24,7 @@ fn header() -> RecordingHeader {
         camera: false,
         config_file: "qos.toml".into(),
         link_peer_known: false,
+        frames: Default::default(),
     }
 }
 

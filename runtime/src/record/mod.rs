@@ -80,6 +80,34 @@ pub enum RecordingSource {
     Flight,
 }
 
+/// Which camera frames a recording keeps. Frames are nearly all of a recording's size (a
+/// 640×480 frame is 300 kB; the rest of a second of flight, a few kB).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FramePolicy {
+    /// Every frame the runner delivered, and every depth frame: the whole mission replays.
+    #[default]
+    Every,
+    /// No frames: telemetry, decisions and every task's outputs only. The tasks that read
+    /// frames see none in a replay, so their outputs (and what follows from them) differ; the
+    /// rest replays as flown.
+    None,
+}
+
+impl std::str::FromStr for FramePolicy {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        match text {
+            "every" => Ok(Self::Every),
+            "none" => Ok(Self::None),
+            _ => Err(format!(
+                "expected every (each frame delivered) or none (telemetry and outputs only), found `{text}`"
+            )),
+        }
+    }
+}
+
 /// How the recorded mission was flown: what a replay needs beside the config.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RecordingHeader {
@@ -102,6 +130,9 @@ pub struct RecordingHeader {
     /// The link had somewhere to send from the start (udpout, TCP, serial); udpin learns it
     /// from the autopilot's first message.
     pub link_peer_known: bool,
+    /// Which frames the recording kept (recordings from before the policy kept every one).
+    #[serde(default)]
+    pub frames: FramePolicy,
 }
 
 impl RecordingHeader {
@@ -125,6 +156,7 @@ impl RecordingHeader {
             camera,
             config_file,
             link_peer_known: false,
+            frames: FramePolicy::Every,
         }
     }
 }

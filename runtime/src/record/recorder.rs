@@ -3,7 +3,7 @@
 //! the loop and the tasks only queue a message.
 
 use super::channels::{self as ch, ChannelSpec, MavlinkBatch, MavlinkRecord, StepRecord};
-use super::{ConfigFile, RecordError, RecordingHeader, HEADER_METADATA};
+use super::{ConfigFile, FramePolicy, RecordError, RecordingHeader, HEADER_METADATA};
 use crate::bus::{Bus, Message, Topic};
 use crate::clock::Timestamp;
 use crate::governor::GovernorDecision;
@@ -38,6 +38,8 @@ pub struct RecorderOptions {
     /// Leave out what a replay is fed (frames, telemetry in): a replay's own run records only
     /// what it made.
     pub outputs_only: bool,
+    /// Which camera and depth frames to keep (the header says which were kept).
+    pub frames: FramePolicy,
 }
 
 /// One message, encoded, on its way to the file.
@@ -95,6 +97,7 @@ pub struct Recorder {
     jobs: Option<mpsc::Sender<Work>>,
     thread: Option<JoinHandle<Result<RecordingSummary, RecordError>>>,
     outputs_only: bool,
+    frames: FramePolicy,
     live_port: Option<u16>,
 }
 
@@ -123,7 +126,11 @@ impl Recorder {
             (None, false) => Output::None,
         };
         let mut writer = McapSink::new(output, options.file.clone())?;
-        writer.header(header, config_files)?;
+        let header = RecordingHeader {
+            frames: options.frames,
+            ..header.clone()
+        };
+        writer.header(&header, config_files)?;
         let live = options.live.map(LiveServer::start).transpose()?;
         let live_port = live.as_ref().map(|l| l.port);
         let (jobs, receiver) = mpsc::channel::<Work>();
@@ -135,8 +142,14 @@ impl Recorder {
             jobs: Some(jobs),
             thread: Some(thread),
             outputs_only: options.outputs_only,
+            frames: options.frames,
             live_port,
         })
+    }
+
+    /// Whether camera and depth frames go into the recording.
+    fn keeps_frames(&self) -> bool {
+        !self.outputs_only && self.frames == FramePolicy::Every
     }
 
     /// The live server's port, when serving.
@@ -211,7 +224,7 @@ impl Recorder {
                 vec![Encoded::at(hybrid, m.stamp.as_nanos(), ch::json(&m.value))]
             },
         )?;
-        if !self.outputs_only {
+        if self.keeps_frames() {
             self.tap(bus, DEPTH_FRAME, |m: &Message<DepthFrame>| {
                 let t = m.stamp.as_nanos();
                 vec![Encoded {
@@ -278,7 +291,7 @@ impl Recorder {
 
     /// A camera frame the runner delivered at `now_s`, captured at `capture_s`.
     pub fn frame(&self, now_s: f64, capture_s: f64, frame_index: u64, image: Arc<GrayImage>) {
-        if self.outputs_only {
+        if !self.keeps_frames() {
             return;
         }
         let (t, capture) = (ns(now_s), ns(capture_s));

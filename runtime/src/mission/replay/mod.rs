@@ -16,10 +16,10 @@ use crate::record::channels::{self as ch, MavlinkBatch, StepRecord};
 use crate::record::latency::CaptureStamps;
 use crate::record::reader::{RecordedMessage, RecordingReader};
 use crate::record::recorder::{Recorder, RecorderOptions};
-use crate::record::RecordError;
+use crate::record::{FramePolicy, RecordError, RecordingHeader};
 use crate::registry::PluginRegistry;
 use crate::scheduler::SchedulerBuilder;
-use crate::topics::{CameraFrame, DepthFrame, DEPTH_FRAME};
+use crate::topics::{CameraFrame, DepthFrame, CAMERA_FRAME, DEPTH_FRAME};
 use compare::{compare, messages_at, OutputPrints};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -93,6 +93,10 @@ pub struct ReplayReport {
     pub channels: Vec<ChannelDiff>,
     /// The flight's capture to setpoint, read from the recording ([`super::latency`]).
     pub capture_to_setpoint: crate::scheduler::DurationSummary,
+    /// The tasks that read camera or depth frames where the recording kept none
+    /// (`--record-frames none`): they see no frames in the replay, so their outputs, and what
+    /// follows from them, cannot be as flown.
+    pub without_frames: Vec<String>,
 }
 
 impl ReplayReport {
@@ -115,6 +119,7 @@ pub fn replay(
 ) -> Result<ReplayReport, ReplayError> {
     let mut recording = RecordingReader::open(path)?;
     let header = &recording.header.clone();
+    let without_frames = tasks_without_frames(header, &model, registry);
     // The phases flown for as long as they were, where the config has the same phases.
     let phases = &mut model.config.mission.phases;
     if phases.len() == header.phase_durations_s.len() {
@@ -262,7 +267,26 @@ pub fn replay(
         capture_to_setpoint: stamps.capture_to_setpoint(),
         stopped,
         channels,
+        without_frames,
     })
+}
+
+/// The tasks that read frames, where the recording kept none.
+fn tasks_without_frames(
+    header: &RecordingHeader,
+    model: &MissionModel,
+    registry: &PluginRegistry,
+) -> Vec<String> {
+    if header.frames == FramePolicy::Every {
+        return Vec::new();
+    }
+    model
+        .config
+        .tasks
+        .iter()
+        .filter(|t| registry.reads(t, CAMERA_FRAME.name()) || registry.reads(t, DEPTH_FRAME.name()))
+        .map(|t| t.name.clone())
+        .collect()
 }
 
 /// The replay's own outputs: a temporary MCAP file, removed when the replay is done.
