@@ -4,21 +4,29 @@
 mod common;
 use common::{output_text, qosrt};
 
-#[test]
-fn a_recorded_simulation_replays_with_no_difference_and_a_slower_detector_differs() {
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("m.mcap");
-    let file_arg = file.to_str().unwrap();
-    let sim = qosrt(&[
+/// The short mission of seed 2 recorded to `file`, with `extra` flags.
+fn record(file: &std::path::Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
         "sim",
         "--tracking-s",
         "3",
         "--seed",
         "2",
         "--record",
-        file_arg,
-    ]);
+        file.to_str().unwrap(),
+    ];
+    args.extend(extra);
+    let sim = qosrt(&args);
     assert!(sim.status.success(), "{}", output_text(&sim));
+    sim
+}
+
+#[test]
+fn a_recorded_simulation_replays_with_no_difference_and_a_slower_detector_differs() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("m.mcap");
+    let file_arg = file.to_str().unwrap();
+    let sim = record(&file, &[]);
     assert!(
         output_text(&sim).contains("recorded "),
         "{}",
@@ -142,24 +150,13 @@ fn a_replay_needs_far_less_memory_than_its_recording_is_large() {
 #[test]
 fn a_recording_without_frames_is_small_and_its_replay_says_what_it_cannot_compare() {
     let dir = tempfile::tempdir().unwrap();
-    let record = |name: &str, frames: &str| {
+    let recorded = |name: &str, frames: &str| {
         let file = dir.path().join(name);
-        let sim = qosrt(&[
-            "sim",
-            "--tracking-s",
-            "3",
-            "--seed",
-            "2",
-            "--record",
-            file.to_str().unwrap(),
-            "--record-frames",
-            frames,
-        ]);
-        assert!(sim.status.success(), "{}", output_text(&sim));
+        record(&file, &["--record-frames", frames]);
         file
     };
-    let every = record("every.mcap", "every");
-    let none = record("none.mcap", "none");
+    let every = recorded("every.mcap", "every");
+    let none = recorded("none.mcap", "none");
     let size = |file: &std::path::Path| std::fs::metadata(file).unwrap().len();
     assert!(
         size(&none) * 10 < size(&every),
