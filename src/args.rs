@@ -1,5 +1,6 @@
 //! Arguments several subcommands share: recording and the live view, `--fix`, `N,E`.
 
+use runtime::config::MissionConfig;
 use runtime::record::{FramePolicy, RecorderOptions};
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -18,17 +19,19 @@ pub struct RecordArgs {
     /// Which camera frames the recording (and the live view) keeps: every (the default; the
     /// whole mission replays) or none (telemetry, decisions and outputs: a few MB a minute
     /// instead of 160; the tasks that read frames cannot be replayed).
-    #[arg(long, value_name = "every|none", default_value = "every")]
-    pub record_frames: FramePolicy,
+    /// (Default: the config's `[record] frames`, else every.)
+    #[arg(long, value_name = "every|none")]
+    pub record_frames: Option<FramePolicy>,
 }
 
 impl RecordArgs {
-    /// Where to record, if anywhere.
-    pub fn options(&self) -> Option<RecorderOptions> {
+    /// Where to record, if anywhere, and what: the flags, else the mission's `[record]`.
+    pub fn options(&self, config: &MissionConfig) -> Option<RecorderOptions> {
+        let configured = config.record.unwrap_or_default().frames;
         (self.record.is_some() || self.foxglove.is_some()).then(|| RecorderOptions {
             file: self.record.clone(),
             live: self.foxglove,
-            frames: self.record_frames,
+            frames: self.record_frames.unwrap_or(configured),
             ..RecorderOptions::default()
         })
     }

@@ -230,7 +230,7 @@ fn start_runner(args: &FlyArgs) -> Result<Runner, Failure> {
         camera,
         runner_options.clone(),
     )?;
-    if let Some(options) = args.recording.options() {
+    if let Some(options) = args.recording.options(&loaded.config) {
         let files = ConfigFile::collect(&args.file, &loaded.config)?;
         let mut header = RecordingHeader::new(
             RecordingSource::Flight,

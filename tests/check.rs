@@ -295,6 +295,11 @@ const BAD_CASES: &[BadCase] = &[
         )],
     },
     BadCase {
+        name: "a frame policy that is neither",
+        replace: &[("[camera]\n", "[record]\nframes = \"half\"\n\n[camera]\n")],
+        expect: &[at("\"half\"", 0, "`half`")],
+    },
+    BadCase {
         name: "negative phase duration",
         replace: &[("duration_s = 900.0", "duration_s = -900.0")],
         expect: &[at("-900.0", 0, "duration_s must be a finite number > 0, found -900")],

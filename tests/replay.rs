@@ -197,3 +197,36 @@ fn a_recording_without_frames_is_small_and_its_replay_says_what_it_cannot_compar
         "{text}"
     );
 }
+
+/// `[record] frames = "none"` in the mission keeps the frames out as the flag does; the flag
+/// overrides it.
+#[test]
+fn the_missions_record_section_sets_the_frame_policy_and_the_flag_overrides_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = common::short_mission(dir.path(), 3.0);
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(
+        &config,
+        text.replace("[camera]\n", "[record]\nframes = \"none\"\n\n[camera]\n"),
+    )
+    .unwrap();
+    let recorded = |name: &str, extra: &[&str]| {
+        let file = dir.path().join(name);
+        let mut args = vec![
+            "sim",
+            config.to_str().unwrap(),
+            "--record",
+            file.to_str().unwrap(),
+        ];
+        args.extend(extra);
+        let sim = qosrt(&args);
+        assert!(sim.status.success(), "{}", output_text(&sim));
+        std::fs::metadata(&file).unwrap().len()
+    };
+    let configured = recorded("configured.mcap", &[]);
+    let overridden = recorded("every.mcap", &["--record-frames", "every"]);
+    assert!(
+        configured * 10 < overridden,
+        "{configured} bytes as configured, {overridden} with every frame"
+    );
+}

@@ -43,9 +43,9 @@ pub fn run(args: &SimArgs) -> ExitCode {
     if !args.merge.is_empty() {
         return crate::evaluate::run_merge(args);
     }
-    let recording = args.recording.options();
+    let records = args.recording.record.is_some() || args.recording.foxglove.is_some();
     let several = args.evaluate || args.evaluate_hazards || args.evaluate_paths || args.serve;
-    if recording.is_some() && (several || args.runs() > 1) {
+    if records && (several || args.runs() > 1) {
         eprintln!("error: --record and --foxglove record one mission: leave out --runs, --evaluate*, --serve");
         return ExitCode::from(EXIT_INVALID_CONFIG);
     }
@@ -64,6 +64,7 @@ pub fn run(args: &SimArgs) -> ExitCode {
     if args.evaluate_paths {
         return evaluate_paths(&model, &registry, args);
     }
+    let recording = args.recording.options(&model.config);
     let options = |seed: u64| args.options(seed);
     let runs = args.runs();
     if runs == 1 {

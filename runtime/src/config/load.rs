@@ -6,7 +6,7 @@ use super::suggest::did_you_mean;
 use super::validate::{validate, PathSegment, PluginRules};
 use super::GovernorConfig;
 use super::{Battery, Flight, Mission, MissionConfig, PowerModelConfig, TaskConfig};
-use super::{CameraSettings, LinkSettings};
+use super::{CameraSettings, LinkSettings, RecordSettings};
 use crate::diagnostic::{Diagnostic, FileReport};
 use serde::de::DeserializeOwned;
 use std::ops::Range;
@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use toml::de::{DeTable, DeValue, ValueDeserializer};
 use toml::Spanned;
 
-const SECTIONS: [&str; 8] = [
+const SECTIONS: [&str; 9] = [
     "mission",
     "battery",
     "flight",
@@ -23,6 +23,7 @@ const SECTIONS: [&str; 8] = [
     "governor",
     "link",
     "camera",
+    "record",
 ];
 
 /// A config that passed every check.
@@ -178,7 +179,7 @@ fn deserialize_sections(
             diagnostics.push(Diagnostic::error(
                 Some(key.span()),
                 format!(
-                    "unknown section `{key_name}`{}; expected one of: [mission], [battery], [flight], [power_model], [[task]], [governor], [link]",
+                    "unknown section `{key_name}`{}; expected one of: [mission], [battery], [flight], [power_model], [[task]], [governor], [link], [camera], [record]",
                     did_you_mean(key_name, SECTIONS)
                 ),
             ));
@@ -189,20 +190,12 @@ fn deserialize_sections(
     let flight = section::<Flight>(root, "flight", diagnostics);
     let power_model = section::<PowerModelConfig>(root, "power_model", diagnostics);
     let tasks = tasks(root, diagnostics);
-    // The governor's section is optional: absent means its defaults.
-    let governor = match root.get("governor") {
-        None => Some(None),
-        Some(_) => section::<GovernorConfig>(root, "governor", diagnostics).map(Some),
-    };
-    // So is the link's: absent means no signing and the default streams.
-    let link = match root.get("link") {
-        None => Some(None),
-        Some(_) => section::<LinkSettings>(root, "link", diagnostics).map(Some),
-    };
-    let camera = match root.get("camera") {
-        None => Some(None),
-        Some(_) => section::<CameraSettings>(root, "camera", diagnostics).map(Some),
-    };
+    // The optional sections: absent means their defaults (the governor's tuning, no signing and
+    // the default streams, the default camera, every frame recorded).
+    let governor = optional_section::<GovernorConfig>(root, "governor", diagnostics);
+    let link = optional_section::<LinkSettings>(root, "link", diagnostics);
+    let camera = optional_section::<CameraSettings>(root, "camera", diagnostics);
+    let record = optional_section::<RecordSettings>(root, "record", diagnostics);
     Some(MissionConfig {
         mission: mission?,
         battery: battery?,
@@ -212,7 +205,20 @@ fn deserialize_sections(
         governor: governor?,
         link: link?,
         camera: camera?,
+        record: record?,
     })
+}
+
+/// An optional section: `Some(None)` when absent, `None` when present and broken.
+fn optional_section<T: DeserializeOwned>(
+    root: &DeTable<'_>,
+    name: &str,
+    diagnostics: &mut Vec<Diagnostic>,
+) -> Option<Option<T>> {
+    match root.get(name) {
+        None => Some(None),
+        Some(_) => section::<T>(root, name, diagnostics).map(Some),
+    }
 }
 
 fn section<T: DeserializeOwned>(

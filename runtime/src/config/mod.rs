@@ -46,6 +46,9 @@ pub struct MissionConfig {
     /// The camera the tasks read; every key is optional.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<CameraSettings>,
+    /// What a recording keeps; every key has a default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub record: Option<RecordSettings>,
 }
 
 /// `[camera]`: the one downward camera of the mission. The camera source checks its frames
@@ -116,6 +119,43 @@ pub const MOVED_CAMERA_PARAMS: [(&str, &str); 4] = [
     ("image_height_px", "height_px"),
     ("camera_mount", "mount"),
 ];
+
+/// `[record]`: what `--record` keeps (the command line's `--record-frames` overrides it).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordSettings {
+    /// "every" (the default) or "none".
+    #[serde(default)]
+    pub frames: FramePolicy,
+}
+
+/// Which camera frames a recording keeps. Frames are nearly all of a recording's size (a
+/// 640×480 frame is 300 kB; the rest of a second of flight, a few kB).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FramePolicy {
+    /// Every frame the runner delivered, and every depth frame: the whole mission replays.
+    #[default]
+    Every,
+    /// No frames: telemetry, decisions and every task's outputs only. The tasks that read
+    /// frames see none in a replay, so their outputs (and what follows from them) differ; the
+    /// rest replays as flown.
+    None,
+}
+
+impl std::str::FromStr for FramePolicy {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        match text {
+            "every" => Ok(Self::Every),
+            "none" => Ok(Self::None),
+            _ => Err(format!(
+                "expected every (each frame delivered) or none (telemetry and outputs only), found `{text}`"
+            )),
+        }
+    }
+}
 
 /// The topic a camera's frames arrive on.
 pub const CAMERA_FRAME_TOPIC: &str = "camera/frame";

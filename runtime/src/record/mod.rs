@@ -11,6 +11,7 @@ pub mod latency;
 pub mod reader;
 pub mod recorder;
 
+pub use crate::config::FramePolicy;
 pub use reader::{
     read_recording, read_recording_file, RecordedMessage, Recording, RecordingReader,
 };
@@ -78,34 +79,6 @@ pub enum RecordingSource {
     Sim,
     /// `qosrt run`: a real (or SITL) autopilot on the wall clock.
     Flight,
-}
-
-/// Which camera frames a recording keeps. Frames are nearly all of a recording's size (a
-/// 640×480 frame is 300 kB; the rest of a second of flight, a few kB).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FramePolicy {
-    /// Every frame the runner delivered, and every depth frame: the whole mission replays.
-    #[default]
-    Every,
-    /// No frames: telemetry, decisions and every task's outputs only. The tasks that read
-    /// frames see none in a replay, so their outputs (and what follows from them) differ; the
-    /// rest replays as flown.
-    None,
-}
-
-impl std::str::FromStr for FramePolicy {
-    type Err = String;
-
-    fn from_str(text: &str) -> Result<Self, String> {
-        match text {
-            "every" => Ok(Self::Every),
-            "none" => Ok(Self::None),
-            _ => Err(format!(
-                "expected every (each frame delivered) or none (telemetry and outputs only), found `{text}`"
-            )),
-        }
-    }
 }
 
 /// How the recorded mission was flown: what a replay needs beside the config.
