@@ -197,7 +197,7 @@ fn start_runner(args: &FlyArgs) -> Result<Runner, Failure> {
     };
     let link = MavlinkLink::connect(&args.mavlink, link_config)?;
     // The tasks project with the mission's camera: a frame of another size is refused.
-    let camera_settings = loaded.config.camera.clone().unwrap_or_default();
+    let camera_settings = loaded.config.camera_settings();
     let camera = args
         .camera
         .as_deref()

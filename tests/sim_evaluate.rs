@@ -13,26 +13,10 @@ fn two_shards_merge_into_the_table_of_their_runs() {
     for i in 1..=2 {
         let shard = format!("{i}/2");
         let out = shard_path(i);
-        let output = qosrt(&[
-            "sim",
-            "--evaluate",
-            "--worlds",
-            "ideal",
-            "--rates",
-            "10",
-            "--winds",
-            "0",
-            "--paths",
-            "straight",
-            "--runs",
-            "2",
-            "--tracking-s",
-            "5",
-            "--shard",
-            &shard,
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let mut args = vec!["sim"];
+        args.extend(SMALL_SWEEP);
+        args.extend(["--shard", &shard, "--out", out.to_str().unwrap()]);
+        let output = qosrt(&args);
         assert!(output.status.success(), "{}", output_text(&output));
         let file: Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
         assert_eq!(file["shard"]["index"], i);
@@ -104,7 +88,7 @@ fn two_shards_merge_into_the_table_of_their_runs() {
     assert!(stderr.contains("--shard 2/2"), "{stderr}");
 }
 
-/// The sweep of `two_shards_merge_into_the_table_of_their_runs`, as flags.
+/// A one-cell evaluation of two seeds, as flags.
 const SMALL_SWEEP: [&str; 13] = [
     "--worlds",
     "ideal",

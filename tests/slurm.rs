@@ -8,6 +8,8 @@
 //! It skips, saying why, where Slurm is not installed or the test is not root (slurmd starts
 //! jobs as their user).
 
+mod common;
+use common::repo_root;
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -19,10 +21,6 @@ const SWEEP: &str =
 const SHARDS: usize = 4;
 /// Longest the test waits for a job.
 const JOB_TIMEOUT: Duration = Duration::from_secs(240);
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).to_path_buf()
-}
 
 /// Why the test cannot run here, if it cannot.
 fn unavailable() -> Option<String> {
@@ -213,7 +211,7 @@ impl Cluster {
     /// Submits `sweep` in `SHARDS` shards with deploy/slurm/submit.sh: the array job's id and
     /// the merge's.
     fn submit(&self, sweep_dir: &Path, sweep: &str) -> (String, String) {
-        let submit = repo().join("deploy/slurm/submit.sh");
+        let submit = repo_root().join("deploy/slurm/submit.sh");
         let output = self
             .command("bash")
             .arg(&submit)
@@ -222,7 +220,7 @@ impl Cluster {
             // One core a shard: two shards fly at once on this two-core node.
             .arg("--cpus-per-task=1")
             .env("QOSRT", env!("CARGO_BIN_EXE_qosrt"))
-            .env("QOSRT_CONFIG", repo().join("qos.toml"))
+            .env("QOSRT_CONFIG", repo_root().join("qos.toml"))
             .env("QOSRT_SWEEP", sweep)
             .env("QOSRT_SWEEP_DIR", sweep_dir)
             .output()
@@ -334,7 +332,7 @@ fn text(output: &Output) -> String {
 fn qosrt_sim(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_qosrt"))
         .arg("sim")
-        .arg(repo().join("qos.toml"))
+        .arg(repo_root().join("qos.toml"))
         .args(args)
         .output()
         .unwrap()

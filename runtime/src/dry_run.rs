@@ -6,6 +6,7 @@
 //! per-task statistics. It shows what the tasks cost on this computer before anything flies.
 
 use crate::camera::{CapturedFrame, MemorySource};
+use crate::config::CameraSettings;
 use crate::energy::MissionModel;
 use crate::link::{LinkConfig, LinkError, MavlinkLink};
 use crate::mission::{MissionPlan, MissionRunner, RunnerError, RunnerOptions};
@@ -15,7 +16,7 @@ use crate::scheduler::{
     DurationSummary, RealTimeOptions, SchedulerBuilder, SchedulerError, TaskStats,
 };
 use crate::topics::{CameraFrame, VehicleState, LANDING_SETPOINT, RELATIVE_STATE};
-use algorithms::camera::{CameraError, CameraPose, PinholeCamera};
+use algorithms::camera::{CameraError, CameraPose};
 use algorithms::estimation::camera_mount;
 use algorithms::estimation::projection::Attitude;
 use algorithms::vision::image::GrayImage;
@@ -137,7 +138,7 @@ pub fn dry_run(
             .unwrap_or(0),
     };
     let phase_name = config.mission.phases[phase_index].name.clone();
-    let frames = synthetic_frames()?;
+    let frames = synthetic_frames(&config.camera_settings())?;
     let pack = model.battery_spec(None).map_err(DryRunError::Battery)?;
 
     let scheduler = SchedulerBuilder::new(registry)
@@ -375,11 +376,13 @@ pub(crate) fn hovering_vehicle() -> VehicleState {
     }
 }
 
-/// A few frames of the reference pad drifting under a camera at 5 m, rendered once up front so
-/// the run measures the tasks, not the renderer.
-pub(crate) fn synthetic_frames() -> Result<Vec<Arc<GrayImage>>, DryRunError> {
-    let camera =
-        PinholeCamera::from_fov(640, 480, 60f64.to_radians()).map_err(DryRunError::Camera)?;
+/// A few frames of the reference pad drifting under the mission's camera at 5 m, rendered once
+/// up front so the run measures the tasks, not the renderer (and the tasks project them with
+/// the camera that took them).
+pub(crate) fn synthetic_frames(
+    camera: &CameraSettings,
+) -> Result<Vec<Arc<GrayImage>>, DryRunError> {
+    let camera = camera.pinhole().map_err(DryRunError::Camera)?;
     let [roll, pitch, yaw] = HOVER_ATTITUDE_RAD;
     let pose = CameraPose::downward(Vector3::new(0.0, 0.0, -HOVER_HEIGHT_M), roll, pitch, yaw);
     (0..5)

@@ -114,7 +114,7 @@ pub fn load_str(
     let mut diagnostics = Vec::new();
     let mut config = deserialize_sections(root.get_ref(), &mut diagnostics);
     if let Some(config) = config.as_mut() {
-        let camera = config.camera.clone().unwrap_or_default();
+        let camera = config.camera_settings();
         for task in &mut config.tasks {
             task.config_dir = base_dir.map(Path::to_path_buf);
             task.camera = camera.clone();

@@ -539,6 +539,11 @@ impl TaskConfig {
 }
 
 impl MissionConfig {
+    /// The mission's camera: its `[camera]`, or that section's defaults.
+    pub fn camera_settings(&self) -> CameraSettings {
+        self.camera.clone().unwrap_or_default()
+    }
+
     /// A number from the `[task.params]` of the first task running `plugin`; TOML integers
     /// count, as they do for the plugins' own parsing.
     pub fn plugin_number(&self, plugin: &str, key: &str) -> Option<f64> {

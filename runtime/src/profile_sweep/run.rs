@@ -287,7 +287,7 @@ pub fn run_sweep(
 
     let tasks: Vec<_> = plan.tasks.iter().map(|&i| &config.tasks[i]).collect();
     let task_names: Vec<String> = tasks.iter().map(|t| t.name.clone()).collect();
-    let frames = synthetic_frames().map_err(SweepError::Frames)?;
+    let frames = synthetic_frames(&config.camera_settings()).map_err(SweepError::Frames)?;
     let mut scheduler = SchedulerBuilder::new(registry)
         .tasks(tasks.iter().copied())
         .build_real_time(RealTimeOptions::default())?;

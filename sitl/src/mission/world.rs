@@ -54,7 +54,7 @@ pub(crate) fn flight_power_w(
 /// The mission's `[camera]` as the world renders it (10 fps without a declared rate, like the
 /// seed's).
 pub(crate) fn camera_config(model: &MissionModel) -> SimCameraConfig {
-    let camera = model.config.camera.clone().unwrap_or_default();
+    let camera = model.config.camera_settings();
     let mut config = SimCameraConfig {
         horizontal_fov_deg: camera.horizontal_fov_deg,
         width_px: camera.width_px,
@@ -70,8 +70,7 @@ pub(crate) fn camera_config(model: &MissionModel) -> SimCameraConfig {
 /// The camera's gimbal, when `[camera]` puts the camera on one (`mount = "gimbal"`): the
 /// world then carries one and its autopilot reports it.
 pub(crate) fn camera_gimbal(model: &MissionModel) -> Result<Option<Gimbal>, GimbalError> {
-    let mount = model.config.camera.as_ref().map(|camera| camera.mount);
-    (mount == Some(CameraMount::Gimbal))
+    (model.config.camera_settings().mount == CameraMount::Gimbal)
         .then(|| Gimbal::new(GimbalParams::default()))
         .transpose()
 }
