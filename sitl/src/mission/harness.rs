@@ -88,7 +88,10 @@ impl<'a> Harness<'a> {
         let (scheduler, skipped_tasks) = build_scheduler(&model, registry, options)?;
         let realism = &options.world.realism;
         let seed = options.world.seed;
-        let world = World::build(&options.world, TractorParams::default().pad_height_m)?;
+        let pad_height_m = TractorParams::default().pad_height_m;
+        let world = World::build(&options.world, pad_height_m)?;
+        // The sequencer flies to the world's meeting point, at cruise height above its pad.
+        let plan = mission_plan(&model, options.world.meeting_point_ne_m, pad_height_m);
         let (scene, hazards_total) = build_scene(&model, &world, realism, seed)?;
         let (battery, rotors) = pack_and_rotors(&model).map_err(SimError::Setup)?;
         let camera_config = SimCameraConfig {
@@ -118,7 +121,7 @@ impl<'a> Harness<'a> {
             Some(real) => Flyer::real(real, gimbal, seed)?,
         };
         let mut events = Vec::new();
-        let runner = start_runner(&model, scheduler, link, &camera, options, &mut events)?;
+        let runner = start_runner(&model, plan, scheduler, link, &camera, options, &mut events)?;
         let max_time_s = options.max_time_s.unwrap_or_else(|| {
             phases_duration_s(&model.config.mission, |kind| kind != PhaseKind::Transit)
                 + TIME_MARGIN_S
@@ -471,18 +474,17 @@ fn build_scene(
     Ok((scene, hazards_total))
 }
 
-/// The mission runner on `scheduler` and `link`, reading the camera's frames, recording where
-/// asked (the Foxglove port told in `events`).
+/// The mission runner flying `plan` on `scheduler` and `link`, reading the camera's frames,
+/// recording where asked (the Foxglove port told in `events`).
 fn start_runner(
     model: &MissionModel,
+    mut plan: MissionPlan,
     scheduler: Box<dyn TaskScheduler>,
     link: MavlinkLink,
     camera: &CameraFeed,
     options: &SimOptions,
     events: &mut Vec<(f64, String)>,
 ) -> Result<Runner, SimError> {
-    let pad_height_m = TractorParams::default().pad_height_m;
-    let mut plan = mission_plan(model, options.world.meeting_point_ne_m, pad_height_m);
     if options.autopilot.is_some() {
         // A real autopilot refuses to arm until its estimator has converged on the world's
         // sensors (PX4 about 16 s, ArduPilot about 42 s).
