@@ -16,11 +16,12 @@ pub struct RecordArgs {
     /// 127.0.0.1:8765; in Foxglove: Open connection → Foxglove WebSocket → ws://ADDR).
     #[arg(long, value_name = "ADDR", num_args = 0..=1, require_equals = true, default_missing_value = "127.0.0.1:8765")]
     pub foxglove: Option<SocketAddr>,
-    /// Which camera frames the recording (and the live view) keeps: every (the default; the
-    /// whole mission replays) or none (telemetry, decisions and outputs: a few MB a minute
-    /// instead of 160; the tasks that read frames cannot be replayed).
+    /// Which camera frames the recording (and the live view) keeps, as lossless PNG: every
+    /// (the default; the whole mission replays), consumed (only the frames a task read; the
+    /// whole mission still replays) or none (telemetry, decisions and outputs: a few MB a
+    /// minute; the tasks that read frames cannot be replayed).
     /// (Default: the config's `[record] frames`, else every.)
-    #[arg(long, value_name = "every|none")]
+    #[arg(long, value_name = "every|consumed|none")]
     pub record_frames: Option<FramePolicy>,
 }
 

@@ -198,6 +198,47 @@ fn a_recording_without_frames_is_small_and_its_replay_says_what_it_cannot_compar
     );
 }
 
+/// Keeping only the frames a task read: each other frame is its size alone, the file is
+/// smaller than with every frame, and the whole mission still replays bit for bit.
+#[test]
+fn a_recording_of_the_consumed_frames_replays_the_whole_mission() {
+    let dir = tempfile::tempdir().unwrap();
+    let every = dir.path().join("every.mcap");
+    let consumed = dir.path().join("consumed.mcap");
+    record(&every, &["--record-frames", "every"]);
+    record(&consumed, &["--record-frames", "consumed"]);
+    let count = |file: &std::path::Path, topic: &str| {
+        runtime::record::read_recording_file(file)
+            .unwrap()
+            .topic(topic)
+            .count()
+    };
+    let delivered = count(&every, "/camera/image");
+    let (kept, unread) = (
+        count(&consumed, "/camera/image"),
+        count(&consumed, "/camera/unread"),
+    );
+    assert_eq!(count(&every, "/camera/unread"), 0);
+    assert_eq!(kept + unread, delivered, "{kept} kept, {unread} unread");
+    assert!(kept > 0 && unread > 0, "{kept} kept, {unread} unread");
+    let size = |file: &std::path::Path| std::fs::metadata(file).unwrap().len();
+    assert!(size(&consumed) < size(&every));
+
+    let replay = qosrt(&["replay", consumed.to_str().unwrap(), "--json"]);
+    assert!(replay.status.success(), "{}", output_text(&replay));
+    let report: serde_json::Value = serde_json::from_slice(&replay.stdout).unwrap();
+    assert_eq!(
+        report["without_frames"],
+        serde_json::json!([]),
+        "{report:#}"
+    );
+    assert!(report["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|c| c["differing"] == 0));
+}
+
 /// `[record] frames = "none"` in the mission keeps the frames out as the flag does; the flag
 /// overrides it.
 #[test]

@@ -335,6 +335,7 @@ impl Bus {
                 message: Mutex::new(None),
                 activity: activity.clone(),
                 tap: OnceLock::new(),
+                read_seq: AtomicU64::new(0),
             });
             (slot.clone(), slot)
         })?;
@@ -439,6 +440,24 @@ struct LatestSlot<T> {
     message: Mutex<Option<Arc<Message<T>>>>,
     activity: Arc<TopicActivity>,
     tap: OnceLock<Tap<T>>,
+    /// The newest sequence number any subscriber has read (set under `message`'s lock, so a
+    /// publisher replacing a message knows whether it was read).
+    read_seq: AtomicU64,
+}
+
+impl<T> LatestSlot<T> {
+    /// The current message, noted as read.
+    fn read(&self) -> Option<Arc<Message<T>>> {
+        let slot = lock(&self.message);
+        let message = slot.clone()?;
+        self.read_seq.fetch_max(message.seq, Ordering::AcqRel);
+        Some(message)
+    }
+
+    /// Whether a subscriber read `message` (the slot's lock held).
+    fn was_read(&self, message: &Message<T>) -> bool {
+        self.read_seq.load(Ordering::Acquire) >= message.seq
+    }
 }
 
 impl<T: Send + Sync> TopicCounters for LatestSlot<T> {
@@ -471,6 +490,13 @@ impl<T> fmt::Debug for Publisher<T> {
 impl<T> Publisher<T> {
     /// Replaces the topic's value; returns the message's sequence number.
     pub fn publish(&self, stamp: Timestamp, value: T) -> u64 {
+        self.publish_noting_read(stamp, value).0
+    }
+
+    /// Publishes like [`Publisher::publish`], and says whether any subscriber read the message
+    /// it replaced (`None`: the topic had none). Once replaced a message cannot be read, so
+    /// the answer is final.
+    pub fn publish_noting_read(&self, stamp: Timestamp, value: T) -> (u64, Option<bool>) {
         let mut slot = lock(&self.slot.message);
         // Numbered under the lock so the slot's sequence numbers only grow.
         let seq = self.slot.activity.count();
@@ -478,10 +504,17 @@ impl<T> Publisher<T> {
         if let Some(tap) = self.slot.tap.get() {
             tap(&message);
         }
+        let replaced_read = slot.as_ref().map(|old| self.slot.was_read(old));
         *slot = Some(message);
         drop(slot);
         self.slot.activity.wake();
-        seq
+        (seq, replaced_read)
+    }
+
+    /// Whether any subscriber has read the topic's current message (`None`: it has none).
+    pub fn current_read(&self) -> Option<bool> {
+        let slot = lock(&self.slot.message);
+        slot.as_ref().map(|message| self.slot.was_read(message))
     }
 }
 
@@ -508,14 +541,19 @@ impl<T> Subscriber<T> {
 
     /// The newest message, new or not, marking it seen.
     pub fn latest(&mut self) -> Option<Arc<Message<T>>> {
-        let message = lock(&self.slot.message).clone()?;
+        let message = self.slot.read()?;
         self.seen_seq = message.seq;
         Some(message)
     }
 
     /// The newest message only if it is new since the last read, marking it seen.
     pub fn take_new(&mut self) -> Option<Arc<Message<T>>> {
-        let message = lock(&self.slot.message).clone()?;
+        // Checked first so a message this subscriber has seen is not read again; checked
+        // again because the count moves just before the message is replaced.
+        if !self.updated() {
+            return None;
+        }
+        let message = self.slot.read()?;
         if message.seq <= self.seen_seq {
             return None;
         }
@@ -523,9 +561,10 @@ impl<T> Subscriber<T> {
         Some(message)
     }
 
-    /// The newest message without marking it seen.
+    /// The newest message without marking it seen (by this subscriber: the topic counts it
+    /// read).
     pub fn peek(&self) -> Option<Arc<Message<T>>> {
-        lock(&self.slot.message).clone()
+        self.slot.read()
     }
 
     /// Sequence number of the last message read (0 before the first).

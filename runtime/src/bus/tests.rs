@@ -40,6 +40,54 @@ fn latest_value_reader_sees_newest_and_knows_whether_it_is_new() {
 }
 
 #[test]
+fn a_publisher_learns_whether_the_message_it_replaces_was_read() {
+    let bus = Bus::new();
+    let publisher = bus.publisher(topic::<Marker>("frame")).unwrap();
+    let mut reader = bus.subscriber(topic::<Marker>("frame")).unwrap();
+    let other = bus.subscriber(topic::<Marker>("frame")).unwrap();
+    let at = Timestamp::from_millis;
+    assert_eq!(publisher.current_read(), None);
+    assert_eq!(
+        publisher.publish_noting_read(at(1), Marker { x_m: 1.0 }),
+        (1, None)
+    );
+    assert_eq!(publisher.current_read(), Some(false));
+    // Asking whether it is new reads nothing.
+    assert!(reader.updated());
+    assert_eq!(
+        publisher.publish_noting_read(at(2), Marker { x_m: 2.0 }),
+        (2, Some(false))
+    );
+    assert_eq!(reader.take_new().unwrap().seq, 2);
+    assert_eq!(publisher.current_read(), Some(true));
+    assert_eq!(
+        publisher.publish_noting_read(at(3), Marker { x_m: 3.0 }),
+        (3, Some(true))
+    );
+    // Any one subscriber's read counts, peeked or taken; a take with nothing new reads nothing.
+    assert!(other.peek().is_some());
+    assert_eq!(
+        publisher.publish_noting_read(at(4), Marker { x_m: 4.0 }).1,
+        Some(true)
+    );
+    assert_eq!(reader.latest().unwrap().seq, 4);
+    assert_eq!(
+        publisher.publish_noting_read(at(5), Marker { x_m: 5.0 }).1,
+        Some(true)
+    );
+    assert_eq!(reader.take_new().unwrap().seq, 5);
+    assert!(reader.take_new().is_none());
+    assert_eq!(
+        publisher.publish_noting_read(at(6), Marker { x_m: 6.0 }).1,
+        Some(true)
+    );
+    assert_eq!(
+        publisher.publish_noting_read(at(7), Marker { x_m: 7.0 }).1,
+        Some(false)
+    );
+}
+
+#[test]
 fn a_tap_sees_every_message_in_order_where_a_reader_sees_the_latest() {
     let bus = Bus::new();
     let publisher = bus.publisher(topic::<Marker>("marker")).unwrap();

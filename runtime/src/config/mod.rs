@@ -124,7 +124,7 @@ pub const MOVED_CAMERA_PARAMS: [(&str, &str); 4] = [
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RecordSettings {
-    /// "every" (the default) or "none".
+    /// "every" (the default), "consumed" or "none".
     #[serde(default)]
     pub frames: FramePolicy,
 }
@@ -137,6 +137,9 @@ pub enum FramePolicy {
     /// Every frame the runner delivered, and every depth frame: the whole mission replays.
     #[default]
     Every,
+    /// Only the frames a task read (most, where the camera is faster than the tasks that
+    /// look); each other frame as its size alone. The whole mission replays.
+    Consumed,
     /// No frames: telemetry, decisions and every task's outputs only. The tasks that read
     /// frames see none in a replay, so their outputs (and what follows from them) differ; the
     /// rest replays as flown.
@@ -149,9 +152,11 @@ impl std::str::FromStr for FramePolicy {
     fn from_str(text: &str) -> Result<Self, String> {
         match text {
             "every" => Ok(Self::Every),
+            "consumed" => Ok(Self::Consumed),
             "none" => Ok(Self::None),
             _ => Err(format!(
-                "expected every (each frame delivered) or none (telemetry and outputs only), found `{text}`"
+                "expected every (each frame delivered), consumed (the frames a task read) or none \
+                 (telemetry and outputs only), found `{text}`"
             )),
         }
     }

@@ -122,6 +122,9 @@ pub struct MissionRunner<S: TaskScheduler> {
     vehicle_topic: Publisher<VehicleState>,
     phase_topic: Publisher<MissionPhase>,
     frames: Publisher<CameraFrame>,
+    /// The index of the frame on the camera topic, for the recording's word on whether a task
+    /// read it.
+    frame_on_topic: Option<u64>,
     /// The vehicle's recent states, to hand each frame the one at its exposure.
     vehicle_history: AttitudeHistory,
     /// The last frames' capture and arrival times, to tell the runtime's own delay.
@@ -183,6 +186,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             vehicle_topic: bus.publisher(VEHICLE_STATE)?,
             phase_topic: bus.publisher(MISSION_PHASE)?,
             frames: bus.publisher(CAMERA_FRAME)?,
+            frame_on_topic: None,
             arrivals: std::collections::VecDeque::with_capacity(ARRIVALS_KEPT),
             vehicle_history: AttitudeHistory::new(VEHICLE_HISTORY_S),
             setpoints: bus.subscriber(LANDING_SETPOINT)?,
@@ -221,6 +225,9 @@ impl<S: TaskScheduler> MissionRunner<S> {
     /// Ends the recording (after [`Self::stop`]: the tasks' statistics go in last).
     pub fn finish_recording(&mut self) -> Option<Result<RecordingSummary, RecordError>> {
         let recorder = self.recorder.take()?;
+        if let (Some(index), Some(read)) = (self.frame_on_topic, self.frames.current_read()) {
+            recorder.frame_read(index, read);
+        }
         recorder.task_stats(self.scheduler.now().as_secs_f64(), self.scheduler.stats());
         Some(recorder.finish())
     }
@@ -549,6 +556,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
                         );
                     }
                     let capture_s = captured.capture_time_s.min(now_s);
+                    let index = captured.frame.frame_index;
                     let mut frame = captured.frame;
                     frame.vehicle_at_capture = self.vehicle_history.at(capture_s);
                     let stamp = Timestamp::from_secs_f64(capture_s.max(0.0));
@@ -557,7 +565,13 @@ impl<S: TaskScheduler> MissionRunner<S> {
                     }
                     self.arrivals
                         .push_back((stamp.as_secs_f64(), captured.arrived_s.min(now_s)));
-                    self.frames.publish(stamp, frame);
+                    let (_, replaced_read) = self.frames.publish_noting_read(stamp, frame);
+                    let replaced = self.frame_on_topic.replace(index);
+                    if let (Some(recorder), Some(replaced), Some(read)) =
+                        (&self.recorder, replaced, replaced_read)
+                    {
+                        recorder.frame_read(replaced, read);
+                    }
                 }
                 Ok(None) => break,
                 Err(error @ CameraSourceError::Ended { .. }) => {

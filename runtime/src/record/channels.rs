@@ -40,6 +40,7 @@ pub enum Encoding {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FoxgloveSchema {
     RawImage,
+    CompressedImage,
     ImageAnnotations,
     PoseInFrame,
     FrameTransform,
@@ -95,6 +96,9 @@ impl ChannelSpec {
                 )
             }
             Encoding::Foxglove(FoxgloveSchema::RawImage) => fg::RawImage::get_schema(),
+            Encoding::Foxglove(FoxgloveSchema::CompressedImage) => {
+                fg::CompressedImage::get_schema()
+            }
             Encoding::Foxglove(FoxgloveSchema::ImageAnnotations) => {
                 fg::ImageAnnotations::get_schema()
             }
@@ -109,8 +113,15 @@ impl ChannelSpec {
 pub const STEP: ChannelSpec = ChannelSpec::json("/qosrt/step", "qosrt.Step", Role::Clock);
 pub const MAVLINK_IN: ChannelSpec =
     ChannelSpec::json("/mavlink/in", "qosrt.MavlinkBatch", Role::Input);
-pub const CAMERA_IMAGE: ChannelSpec =
-    ChannelSpec::foxglove("/camera/image", FoxgloveSchema::RawImage, Role::Input);
+/// Each frame kept, as a PNG ([`super::frames`]; recordings before it: `foxglove.RawImage`).
+pub const CAMERA_IMAGE: ChannelSpec = ChannelSpec::foxglove(
+    "/camera/image",
+    FoxgloveSchema::CompressedImage,
+    Role::Input,
+);
+/// Each frame no task read, by its size alone (`frames = "consumed"`).
+pub const CAMERA_UNREAD: ChannelSpec =
+    ChannelSpec::json("/camera/unread", "qosrt.UnreadFrame", Role::Input);
 pub const CAMERA_DEPTH: ChannelSpec =
     ChannelSpec::foxglove("/camera/depth", FoxgloveSchema::RawImage, Role::Input);
 pub const MAVLINK_OUT: ChannelSpec =
@@ -168,6 +179,7 @@ pub fn all_channels() -> Vec<ChannelSpec> {
         STEP,
         MAVLINK_IN,
         CAMERA_IMAGE,
+        CAMERA_UNREAD,
         CAMERA_DEPTH,
         MAVLINK_OUT,
         GOVERNOR,
@@ -333,6 +345,12 @@ pub enum ChannelError {
     MessageCount { index: usize, found: usize },
     #[error("not a foxglove.RawImage: {0}")]
     NotRawImage(#[source] prost::DecodeError),
+    #[error("not a foxglove.CompressedImage: {0}")]
+    NotCompressedImage(#[source] prost::DecodeError),
+    #[error("expected a frame as an 8-bit grey png, found {0}")]
+    ImageFormat(String),
+    #[error("the frame's png does not decode: {0}")]
+    Png(#[from] image::ImageError),
     #[error(
         "expected a packed {expected} image, found {found} with step {step} for width {width}"
     )]

@@ -1,6 +1,6 @@
 //! Capture to setpoint read back from a recording: each velocity setpoint on `/mavlink/out`
 //! carries in its `time_boot_ms` the capture of the frame whose fix it answers, and the frames
-//! on `/camera/image` carry their capture as their publish time. The first setpoint sent for a
+//! on `/camera/image` (and `/camera/unread`) carry their capture as their publish time. The first setpoint sent for a
 //! capture gives that frame's delay: the flight's own figure, from the file alone.
 
 use std::collections::{BTreeMap, BTreeSet};
@@ -35,7 +35,7 @@ pub struct CaptureStamps {
 
 impl CaptureStamps {
     pub fn add(&mut self, message: &RecordedMessage) {
-        if message.topic == ch::CAMERA_IMAGE.topic {
+        if message.topic == ch::CAMERA_IMAGE.topic || message.topic == ch::CAMERA_UNREAD.topic {
             self.captures_ns.push(message.publish_time_ns);
         } else if message.topic == ch::MAVLINK_OUT.topic {
             if let Some(stamp_ms) = setpoint_stamp_ms(&message.data) {

@@ -7,11 +7,14 @@
 //! fly it again. `mission::replay` re-runs the tasks on the inputs and compares the outputs.
 
 pub mod channels;
+mod frame_hold;
+pub mod frames;
 pub mod latency;
 pub mod reader;
 pub mod recorder;
 
 pub use crate::config::FramePolicy;
+pub use frames::FrameCodec;
 pub use reader::{
     read_recording, read_recording_file, RecordedMessage, Recording, RecordingReader,
 };
@@ -106,6 +109,9 @@ pub struct RecordingHeader {
     /// Which frames the recording kept (recordings from before the policy kept every one).
     #[serde(default)]
     pub frames: FramePolicy,
+    /// How the kept frames are stored (recordings from before compression: raw).
+    #[serde(default)]
+    pub frame_codec: FrameCodec,
 }
 
 impl RecordingHeader {
@@ -130,6 +136,7 @@ impl RecordingHeader {
             config_file,
             link_peer_known: false,
             frames: FramePolicy::Every,
+            frame_codec: FrameCodec::Png,
         }
     }
 }

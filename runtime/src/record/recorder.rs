@@ -3,6 +3,7 @@
 //! the loop and the tasks only queue a message.
 
 use super::channels::{self as ch, ChannelSpec, MavlinkBatch, MavlinkRecord, StepRecord};
+use super::frame_hold::{DeliveredFrame, FrameHold};
 use super::{ConfigFile, FramePolicy, RecordError, RecordingHeader, HEADER_METADATA};
 use crate::bus::{Bus, Message, Topic};
 use crate::clock::Timestamp;
@@ -43,17 +44,17 @@ pub struct RecorderOptions {
 }
 
 /// One message, encoded, on its way to the file.
-struct Encoded {
-    spec: ChannelSpec,
-    log_time_ns: u64,
-    publish_time_ns: u64,
+pub(super) struct Encoded {
+    pub spec: ChannelSpec,
+    pub log_time_ns: u64,
+    pub publish_time_ns: u64,
     /// The MCAP sequence number; `None`: the channel's count.
-    sequence: Option<u32>,
-    data: Vec<u8>,
+    pub sequence: Option<u32>,
+    pub data: Vec<u8>,
 }
 
 impl Encoded {
-    fn at(spec: ChannelSpec, time_ns: u64, data: Vec<u8>) -> Self {
+    pub fn at(spec: ChannelSpec, time_ns: u64, data: Vec<u8>) -> Self {
         Self {
             spec,
             log_time_ns: time_ns,
@@ -71,6 +72,13 @@ type Job = Box<dyn FnOnce() -> Vec<Encoded> + Send>;
 /// lives, so the end is a message, not the channel closing.
 enum Work {
     Job(Job),
+    /// A delivered camera frame, and whether a task read it where that is known already.
+    Frame(DeliveredFrame, Option<bool>),
+    /// Whether a task read frame `index` (`frames = "consumed"`).
+    FrameRead {
+        index: u64,
+        read: bool,
+    },
     Finish,
 }
 
@@ -147,9 +155,10 @@ impl Recorder {
         })
     }
 
-    /// Whether camera and depth frames go into the recording.
+    /// Whether camera and depth frames go into the recording (depth frames whole, under
+    /// `consumed` too).
     fn keeps_frames(&self) -> bool {
-        !self.outputs_only && self.frames == FramePolicy::Every
+        !self.outputs_only && self.frames != FramePolicy::None
     }
 
     /// The live server's port, when serving.
@@ -289,19 +298,36 @@ impl Recorder {
         }));
     }
 
-    /// A camera frame the runner delivered at `now_s`, captured at `capture_s`.
+    /// A camera frame the runner delivered at `now_s`, captured at `capture_s`. Under
+    /// `frames = "consumed"` it waits for [`Recorder::frame_read`].
     pub fn frame(&self, now_s: f64, capture_s: f64, frame_index: u64, image: Arc<GrayImage>) {
         if !self.keeps_frames() {
             return;
         }
-        let (t, capture) = (ns(now_s), ns(capture_s));
-        self.send(Box::new(move || {
-            vec![Encoded {
-                publish_time_ns: capture,
-                sequence: Some(frame_index as u32),
-                ..Encoded::at(ch::CAMERA_IMAGE, t, ch::gray_image(&image, capture))
-            }]
-        }));
+        let frame = DeliveredFrame {
+            now_ns: ns(now_s),
+            capture_ns: ns(capture_s),
+            index: frame_index,
+            image,
+        };
+        let read = (self.frames == FramePolicy::Every).then_some(true);
+        if let Some(jobs) = &self.jobs {
+            let _ = jobs.send(Work::Frame(frame, read));
+        }
+    }
+
+    /// Whether any task read frame `frame_index`: the runner knows once the next frame
+    /// replaces it, or at the end.
+    pub fn frame_read(&self, frame_index: u64, read: bool) {
+        if self.frames != FramePolicy::Consumed || self.outputs_only {
+            return;
+        }
+        if let Some(jobs) = &self.jobs {
+            let _ = jobs.send(Work::FrameRead {
+                index: frame_index,
+                read,
+            });
+        }
     }
 
     /// A mission event (phases, landing modes, faults).
@@ -404,28 +430,41 @@ fn write_loop(
     mut live: Option<LiveServer>,
 ) -> Result<RecordingSummary, RecordError> {
     let mut last_flush = Instant::now();
+    let mut hold = FrameHold::new(FLUSH_PERIOD);
     loop {
         match jobs.recv_timeout(FLUSH_PERIOD) {
-            Ok(Work::Job(job)) => {
-                for message in job() {
-                    if let Some(live) = &mut live {
-                        live.log(&message);
-                    }
-                    writer.write(&message)?;
-                }
-            }
+            Ok(Work::Job(job)) => job().into_iter().for_each(|m| hold.message(m)),
+            Ok(Work::Frame(frame, read)) => hold.frame(frame, read),
+            Ok(Work::FrameRead { index, read }) => hold.mark(index, read),
             Err(mpsc::RecvTimeoutError::Timeout) => {}
             Ok(Work::Finish) | Err(mpsc::RecvTimeoutError::Disconnected) => break,
         }
+        emit(hold.ready(Instant::now()), &mut writer, &mut live)?;
         if last_flush.elapsed() >= FLUSH_PERIOD {
             writer.flush()?;
             last_flush = Instant::now();
         }
     }
+    emit(hold.drain(), &mut writer, &mut live)?;
     if let Some(live) = live {
         live.stop();
     }
     writer.finish()
+}
+
+/// Writes `messages` to the file and the live view.
+fn emit(
+    messages: Vec<Encoded>,
+    writer: &mut McapSink,
+    live: &mut Option<LiveServer>,
+) -> Result<(), RecordError> {
+    for message in messages {
+        if let Some(live) = live {
+            live.log(&message);
+        }
+        writer.write(&message)?;
+    }
+    Ok(())
 }
 
 /// Where the MCAP bytes go.

@@ -13,6 +13,7 @@ use crate::clock::Timestamp;
 use crate::energy::MissionModel;
 use crate::link::{LinkConfig, MavlinkLink, ReplayFeed};
 use crate::record::channels::{self as ch, MavlinkBatch, StepRecord};
+use crate::record::frames::{decode_frame, UnreadFrame};
 use crate::record::latency::CaptureStamps;
 use crate::record::reader::{RecordedMessage, RecordingReader};
 use crate::record::recorder::{Recorder, RecorderOptions};
@@ -207,9 +208,17 @@ pub fn replay(
                     .map_err(|why| bad(ch::MAVLINK_IN.topic, message, why.into()))?;
                 feed.push(incoming);
             }
-            t if t == ch::CAMERA_IMAGE.topic => {
-                let image = ch::decode_gray_image(&message.data)
-                    .map_err(|why| bad(ch::CAMERA_IMAGE.topic, message, why.into()))?;
+            t if t == ch::CAMERA_IMAGE.topic || t == ch::CAMERA_UNREAD.topic => {
+                let image = if t == ch::CAMERA_IMAGE.topic {
+                    decode_frame(header.frame_codec, &message.data)
+                        .map_err(|why| bad(ch::CAMERA_IMAGE.topic, message, why.into()))?
+                } else {
+                    // No task read it in flight: a blank frame of its size takes its place.
+                    serde_json::from_slice::<UnreadFrame>(&message.data)
+                        .map_err(|e| bad(ch::CAMERA_UNREAD.topic, message, e.into()))?
+                        .blank()
+                        .map_err(|why| bad(ch::CAMERA_UNREAD.topic, message, why.into()))?
+                };
                 frames.push(CapturedFrame {
                     frame: CameraFrame {
                         frame_index: u64::from(message.sequence),
@@ -277,7 +286,7 @@ fn tasks_without_frames(
     model: &MissionModel,
     registry: &PluginRegistry,
 ) -> Vec<String> {
-    if header.frames == FramePolicy::Every {
+    if header.frames != FramePolicy::None {
         return Vec::new();
     }
     model
