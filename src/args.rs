@@ -23,16 +23,25 @@ pub struct RecordArgs {
     /// (Default: the config's `[record] frames`, else every.)
     #[arg(long, value_name = "every|consumed|none")]
     pub record_frames: Option<FramePolicy>,
+    /// Each recording file's size budget in MB: a file ends at a step of the loop before it
+    /// passes it, and the recording goes on in FILE-1.mcap, FILE-2.mcap, … (`qosrt replay
+    /// FILE.mcap` follows them). (Default: the config's `[record] max_mb`, else no budget.)
+    #[arg(long, value_name = "MB", value_parser = clap::value_parser!(u64).range(1..))]
+    pub record_max_mb: Option<u64>,
 }
 
 impl RecordArgs {
     /// Where to record, if anywhere, and what: the flags, else the mission's `[record]`.
     pub fn options(&self, config: &MissionConfig) -> Option<RecorderOptions> {
-        let configured = config.record.unwrap_or_default().frames;
+        let configured = config.record.unwrap_or_default();
         (self.record.is_some() || self.foxglove.is_some()).then(|| RecorderOptions {
             file: self.record.clone(),
             live: self.foxglove,
-            frames: self.record_frames.unwrap_or(configured),
+            frames: self.record_frames.unwrap_or(configured.frames),
+            max_bytes: self
+                .record_max_mb
+                .or(configured.max_mb.map(u64::from))
+                .map(|mb| mb * 1_000_000),
             ..RecorderOptions::default()
         })
     }

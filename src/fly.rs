@@ -323,13 +323,8 @@ fn fly_until_done(runner: &mut Runner, args: &FlyArgs, started: Instant) -> Resu
 fn report(runner: &mut Runner, args: &FlyArgs, started: Instant) -> Result<(), Failure> {
     runner.stop();
     if let Some(summary) = runner.finish_recording().transpose()? {
-        if let Some(path) = &summary.file {
-            eprintln!(
-                "recorded {} messages ({:.1} MB) to {}",
-                summary.total_messages(),
-                summary.bytes as f64 / 1e6,
-                path.display()
-            );
+        if summary.file.is_some() {
+            eprintln!("{}", summary.describe());
         }
     }
     let wall_s = started.elapsed().as_secs_f64();

@@ -300,6 +300,11 @@ const BAD_CASES: &[BadCase] = &[
         expect: &[at("\"half\"", 0, "`half`")],
     },
     BadCase {
+        name: "a size budget of nothing",
+        replace: &[("[camera]\n", "[record]\nmax_mb = 0\n\n[camera]\n")],
+        expect: &[at("0\n\n[camera]", 0, "nonzero")],
+    },
+    BadCase {
         name: "negative phase duration",
         replace: &[("duration_s = 900.0", "duration_s = -900.0")],
         expect: &[at("-900.0", 0, "duration_s must be a finite number > 0, found -900")],

@@ -239,6 +239,107 @@ fn a_recording_of_the_consumed_frames_replays_the_whole_mission() {
         .all(|c| c["differing"] == 0));
 }
 
+/// A size budget splits the recording at steps of the loop: each part stays within it and is
+/// a recording of its own (header, config, index), the parts hold between them exactly what
+/// one file holds, the first part replays through all of them with no difference, a later
+/// part alone is refused by name, and a missing part is said.
+#[test]
+fn a_size_budget_splits_the_recording_at_steps_and_the_replay_follows_the_parts() {
+    use runtime::record::{part_path, read_recording};
+    let dir = tempfile::tempdir().unwrap();
+    let whole = dir.path().join("whole.mcap");
+    let split = dir.path().join("split.mcap");
+    record(&whole, &[]);
+    let sim = record(&split, &["--record-max-mb", "4"]);
+    let parts: Vec<_> = (0..)
+        .map(|index| part_path(&split, index))
+        .take_while(|path| path.exists())
+        .collect();
+    assert!(parts.len() >= 3, "{} parts", parts.len());
+    assert!(
+        output_text(&sim).contains(&format!("in {} parts", parts.len())),
+        "{}",
+        output_text(&sim)
+    );
+    // Each part alone: within the budget, a qosrt recording numbered in order, ending on a
+    // step of the loop (all but the last).
+    let mut joined: std::collections::BTreeMap<String, Vec<(u64, Vec<u8>)>> = Default::default();
+    let mut recording_ids = std::collections::BTreeSet::new();
+    for (index, part) in parts.iter().enumerate() {
+        let bytes = std::fs::read(part).unwrap();
+        assert!(
+            bytes.len() <= 4_000_000,
+            "{}: {} bytes",
+            part.display(),
+            bytes.len()
+        );
+        let recording = read_recording(&bytes).unwrap();
+        assert_eq!(recording.header.part, index as u32);
+        assert!(recording.truncated.is_none());
+        recording_ids.insert(recording.header.recording_id.clone());
+        assert!(recording.config_files.iter().any(|f| f.path == "qos.toml"));
+        let next = parts
+            .get(index + 1)
+            .map(|p| p.file_name().unwrap().to_str().unwrap());
+        assert_eq!(recording.continues_in.as_deref(), next);
+        if next.is_some() {
+            assert_eq!(recording.messages.last().unwrap().topic, "/qosrt/step");
+        }
+        for message in recording.messages {
+            joined
+                .entry(message.topic)
+                .or_default()
+                .push((message.log_time_ns, message.data));
+        }
+    }
+    assert_eq!(recording_ids.len(), 1, "{recording_ids:?}");
+    // Between them, what one file of the same mission holds: nothing lost or doubled at a cut.
+    let mut one: std::collections::BTreeMap<String, Vec<(u64, Vec<u8>)>> = Default::default();
+    for message in runtime::record::read_recording_file(&whole)
+        .unwrap()
+        .messages
+    {
+        one.entry(message.topic)
+            .or_default()
+            .push((message.log_time_ns, message.data));
+    }
+    // The tasks' statistics are the machine's timings, never the same twice.
+    for topics in [&mut joined, &mut one] {
+        topics.remove("/qosrt/task_stats");
+    }
+    assert_eq!(
+        joined.keys().collect::<Vec<_>>(),
+        one.keys().collect::<Vec<_>>()
+    );
+    for (topic, messages) in &one {
+        assert!(joined[topic] == *messages, "{topic} differs");
+    }
+
+    let replay = qosrt(&["replay", split.to_str().unwrap(), "--json"]);
+    assert!(replay.status.success(), "{}", output_text(&replay));
+    let report: serde_json::Value = serde_json::from_slice(&replay.stdout).unwrap();
+    assert_eq!(
+        report["steps_replayed"].as_u64().unwrap(),
+        one["/qosrt/step"].len() as u64
+    );
+    assert_eq!(report["recording_truncated"], serde_json::Value::Null);
+
+    let later = qosrt(&["replay", parts[1].to_str().unwrap()]);
+    assert!(!later.status.success());
+    assert!(
+        output_text(&later).contains("part 1 of a recording split")
+            && output_text(&later).contains("split.mcap"),
+        "{}",
+        output_text(&later)
+    );
+
+    std::fs::remove_file(parts.last().unwrap()).unwrap();
+    let missing = qosrt(&["replay", split.to_str().unwrap(), "--json"]);
+    let report: serde_json::Value = serde_json::from_slice(&missing.stdout).unwrap();
+    let truncated = report["recording_truncated"].as_str().unwrap_or_default();
+    assert!(truncated.contains("unread"), "{report:#}");
+}
+
 /// `[record] frames = "none"` in the mission keeps the frames out as the flag does; the flag
 /// overrides it.
 #[test]

@@ -25,6 +25,11 @@ fn header() -> RecordingHeader {
         config_file: "qos.toml".into(),
         link_peer_known: false,
         frames: Default::default(),
+        frame_codec: runtime::record::FrameCodec::Png,
+        recording_id: String::new(),
+        part: 0,
+        first_part: None,
+        part_starts_ns: None,
     }
 }
 
@@ -92,7 +97,7 @@ fn a_foxglove_client_sees_the_channels_and_receives_what_is_logged() {
         (encoding.as_str(), schema.as_str()),
         ("protobuf", "foxglove.Log")
     );
-    assert_eq!(advertised["/camera/image"].2, "foxglove.RawImage");
+    assert_eq!(advertised["/camera/image"].2, "foxglove.CompressedImage");
     assert_eq!(advertised["/bus/landing/setpoint"].1, "json");
     let subscribe = serde_json::json!({
         "op": "subscribe",

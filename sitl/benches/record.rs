@@ -1,7 +1,9 @@
 //! What recording costs the loop: the reference mission (tracking 30 s, every task, the
-//! realistic world) flown without a recording — the baseline — and with one (`--record`: every
-//! frame, telemetry, topic and decision to a zstd MCAP file), alternated in the same run. It
-//! prints the runtime loop's step time (p50, p99), the simulation's speed, and the ratios.
+//! realistic world) flown without a recording — the baseline — and with one under each frame
+//! policy (`--record`: every frame as PNG, telemetry, topic and decision to a zstd MCAP file;
+//! only the frames a task read; no frames), alternated in the same run. It prints the runtime
+//! loop's step time (p50, p99), the simulation's speed, the ratios to the baseline, and the
+//! file's megabytes per simulated minute.
 //!
 //! `cargo bench -p sitl --bench record`
 
@@ -9,12 +11,12 @@ use runtime::catalog::PluginCatalog;
 use runtime::config::load_file;
 use runtime::energy::load_mission_model;
 use runtime::plugins::builtin_registry;
-use runtime::record::{ConfigFile, RecorderOptions};
+use runtime::record::{ConfigFile, FramePolicy, RecorderOptions};
 use sim::world::WorldOptions;
 use sitl::mission::{simulate, SimOptions, SimRecording};
 use std::path::Path;
 
-const REPEATS: u64 = 3;
+const REPEATS: u64 = 7;
 
 fn main() {
     let registry = builtin_registry().expect("the built-in plugins register");
@@ -24,11 +26,19 @@ fn main() {
     let dir = std::env::temp_dir().join(format!("qosrt-record-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a scratch folder");
     let config_files = ConfigFile::collect(&path, &model.config).expect("the config files");
-    // (p50 µs, p99 µs, speed ×) per repeat, without and with the recording.
-    let mut runs: [Vec<(f64, f64, f64)>; 2] = [Vec::new(), Vec::new()];
-    let mut file_mb = 0.0;
+    // What each run records: nothing (the baseline), then each frame policy.
+    // The baseline again at the end: its ratio to the first is the measurement's own noise.
+    let policies: [(&str, Option<FramePolicy>); 5] = [
+        ("without a recording (baseline)", None),
+        ("--record, every frame", Some(FramePolicy::Every)),
+        ("--record-frames consumed", Some(FramePolicy::Consumed)),
+        ("--record-frames none", Some(FramePolicy::None)),
+        ("without a recording, again", None),
+    ];
+    // (p50 µs, p99 µs, speed ×, MB per simulated minute) per repeat, for each.
+    let mut runs: Vec<Vec<(f64, f64, f64, f64)>> = vec![Vec::new(); policies.len()];
     for repeat in 0..REPEATS {
-        for (recorded, results) in runs.iter_mut().enumerate() {
+        for ((_, policy), results) in policies.iter().zip(&mut runs) {
             let file = dir.join(format!("m{repeat}.mcap"));
             let options = SimOptions {
                 world: WorldOptions {
@@ -36,9 +46,10 @@ fn main() {
                     ..WorldOptions::default()
                 },
                 tracking_s: Some(30.0),
-                record: (recorded == 1).then(|| SimRecording {
+                record: policy.map(|frames| SimRecording {
                     recorder: RecorderOptions {
                         file: Some(file.clone()),
+                        frames,
                         ..RecorderOptions::default()
                     },
                     config_files: config_files.clone(),
@@ -46,41 +57,49 @@ fn main() {
                 ..SimOptions::default()
             };
             let outcome = simulate(&model, &registry, &options).expect("the mission flies");
+            let mb_per_min = std::fs::metadata(&file).map_or(0.0, |m| m.len() as f64 / 1e6)
+                / (outcome.mission_time_s / 60.0);
+            let _ = std::fs::remove_file(&file);
             results.push((
                 outcome.loop_step_p50_us,
                 outcome.loop_step_p99_us,
                 outcome.speedup,
+                mb_per_min,
             ));
-            if recorded == 1 {
-                file_mb = std::fs::metadata(&file).map_or(0.0, |m| m.len() as f64 / 1e6);
-                let _ = std::fs::remove_file(&file);
-            }
         }
     }
     let _ = std::fs::remove_dir_all(&dir);
-    let median = |values: &mut Vec<f64>| {
+    // Each policy's runs against the baseline's run of the same repeat: paired, so the
+    // machine's slower and faster spells fall on both.
+    let median = |mut values: Vec<f64>| {
         values.sort_by(f64::total_cmp);
         values[values.len() / 2]
     };
-    let mut summary = Vec::new();
-    for (label, results) in ["without a recording (baseline)", "with --record"]
-        .iter()
-        .zip(&runs)
-    {
-        let mut p50: Vec<f64> = results.iter().map(|r| r.0).collect();
-        let mut p99: Vec<f64> = results.iter().map(|r| r.1).collect();
-        let mut speed: Vec<f64> = results.iter().map(|r| r.2).collect();
-        let (p50, p99, speed) = (median(&mut p50), median(&mut p99), median(&mut speed));
+    let baseline = &runs[0];
+    for (index, ((label, policy), results)) in policies.iter().zip(&runs).enumerate() {
+        let of =
+            |pick: fn(&(f64, f64, f64, f64)) -> f64| median(results.iter().map(pick).collect());
+        let (p50, p99, speed, mb_per_min) = (of(|r| r.0), of(|r| r.1), of(|r| r.2), of(|r| r.3));
+        let ratio = |pick: fn(&(f64, f64, f64, f64)) -> f64| {
+            median(
+                results
+                    .iter()
+                    .zip(baseline)
+                    .map(|(r, b)| pick(r) / pick(b))
+                    .collect(),
+            )
+        };
+        let ratios = match (index, policy) {
+            (0, _) => String::new(),
+            (_, Some(_)) => format!(
+                "; p99 x{:.2}, speed x{:.2}, {mb_per_min:.1} MB per simulated minute",
+                ratio(|r| r.1),
+                ratio(|r| r.2)
+            ),
+            (_, None) => format!("; p99 x{:.2}, speed x{:.2}", ratio(|r| r.1), ratio(|r| r.2)),
+        };
         println!(
-            "{label:<32} loop step p50 {p50:>7.0} µs, p99 {p99:>7.0} µs, {speed:>5.1}x real time (median of {REPEATS})"
+            "{label:<32} loop step p50 {p50:>6.0} µs, p99 {p99:>6.0} µs, {speed:>5.1}x real time{ratios} (median of {REPEATS})"
         );
-        summary.push((p50, p99, speed));
     }
-    let (base, with) = (summary[0], summary[1]);
-    println!(
-        "recording: loop step p99 x{:.2}, p50 x{:.2}, speed x{:.2}; file {file_mb:.0} MB for one mission",
-        with.1 / base.1,
-        with.0 / base.0,
-        with.2 / base.2
-    );
 }

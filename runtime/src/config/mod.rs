@@ -127,6 +127,9 @@ pub struct RecordSettings {
     /// "every" (the default), "consumed" or "none".
     #[serde(default)]
     pub frames: FramePolicy,
+    /// Each file's size budget in MB (`--record-max-mb`); none by default.
+    #[serde(default)]
+    pub max_mb: Option<std::num::NonZeroU64>,
 }
 
 /// Which camera frames a recording keeps. Frames are nearly all of a recording's size (a

@@ -3,8 +3,8 @@
 //! it), so the file keeps its order and a replay meets each frame before the step that took it.
 
 use super::channels as ch;
+use super::encoded::Encoded;
 use super::frames::{png_image, UnreadFrame};
-use super::recorder::Encoded;
 use algorithms::vision::image::GrayImage;
 use std::collections::VecDeque;
 use std::sync::Arc;

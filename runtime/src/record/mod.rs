@@ -7,11 +7,13 @@
 //! fly it again. `mission::replay` re-runs the tasks on the inputs and compares the outputs.
 
 pub mod channels;
+mod encoded;
 mod frame_hold;
 pub mod frames;
 pub mod latency;
 pub mod reader;
 pub mod recorder;
+mod sink;
 
 pub use crate::config::FramePolicy;
 pub use frames::FrameCodec;
@@ -19,6 +21,7 @@ pub use reader::{
     read_recording, read_recording_file, RecordedMessage, Recording, RecordingReader,
 };
 pub use recorder::{Recorder, RecorderOptions, RecordingSummary};
+pub use sink::part_path;
 
 use crate::config::{MissionConfig, MissionPlan};
 use serde::{Deserialize, Serialize};
@@ -27,6 +30,8 @@ use std::path::{Path, PathBuf};
 
 /// The name of the MCAP metadata record holding the [`RecordingHeader`].
 pub const HEADER_METADATA: &str = "qosrt";
+/// The name of the metadata record that ends a part of a split recording, naming the next.
+pub const CONTINUES_METADATA: &str = "qosrt.continues";
 /// The recording format this build writes and reads.
 pub const FORMAT_VERSION: u32 = 1;
 
@@ -112,6 +117,18 @@ pub struct RecordingHeader {
     /// How the kept frames are stored (recordings from before compression: raw).
     #[serde(default)]
     pub frame_codec: FrameCodec,
+    /// The recording's own id: every part of a split recording carries it.
+    #[serde(default)]
+    pub recording_id: String,
+    /// Which part of a recording split by its size budget this file is: 0, the first (or
+    /// the only one).
+    #[serde(default)]
+    pub part: u32,
+    /// In a later part: the first part's file name, and the time of the step it follows.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub first_part: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub part_starts_ns: Option<u64>,
 }
 
 impl RecordingHeader {
@@ -137,6 +154,10 @@ impl RecordingHeader {
             link_peer_known: false,
             frames: FramePolicy::Every,
             frame_codec: FrameCodec::Png,
+            recording_id: String::new(),
+            part: 0,
+            first_part: None,
+            part_starts_ns: None,
         }
     }
 }

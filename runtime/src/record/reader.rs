@@ -1,7 +1,9 @@
 //! Reading a recording back: its header, its config files and its messages, as far as the file
 //! is whole (a recording cut off by a crash reads up to its last complete chunk).
 
-use super::{ConfigFile, RecordError, RecordingHeader, FORMAT_VERSION, HEADER_METADATA};
+use super::{
+    ConfigFile, RecordError, RecordingHeader, CONTINUES_METADATA, FORMAT_VERSION, HEADER_METADATA,
+};
 use mcap::records::Record;
 use mcap::sans_io::linear_reader;
 use std::collections::HashMap;
@@ -25,6 +27,8 @@ pub struct Recording {
     pub messages: Vec<RecordedMessage>,
     /// Why the file ended before its end: the last complete message was read, the rest lost.
     pub truncated: Option<String>,
+    /// The next part's file, where this is a part of a split recording read alone.
+    pub continues_in: Option<String>,
 }
 
 impl Recording {
@@ -54,6 +58,18 @@ pub struct RecordingReader<R: Read> {
     records: Records<R>,
     /// The first message, read while looking for the header.
     first: Option<RecordedMessage>,
+    /// Where a split recording's next part is opened from (read from a file: its folder).
+    parts: Option<NextParts<R>>,
+    /// The part being read.
+    part: u32,
+    /// Where the recording goes on, when a part read from memory ends.
+    continues_in: Option<String>,
+}
+
+/// How a recording read from a file follows its parts.
+struct NextParts<R> {
+    folder: std::path::PathBuf,
+    open: fn(&std::path::Path) -> Result<R, RecordError>,
 }
 
 /// The file's records as they are read.
@@ -73,6 +89,8 @@ enum Next {
     Message(RecordedMessage),
     Header(Box<RecordingHeader>),
     Config(ConfigFile),
+    /// The end of a part: the file the recording goes on in.
+    Continues(String),
     Other,
 }
 
@@ -80,6 +98,31 @@ impl<R: Read> RecordingReader<R> {
     /// Reads up to the first message: the header (refused where it is missing or of another
     /// format) and the config files.
     pub fn new(source: R) -> Result<Self, RecordError> {
+        let (header, config_files, records, first) = Self::start(source)?;
+        Ok(Self {
+            part: header.part,
+            header,
+            config_files,
+            records,
+            first,
+            parts: None,
+            continues_in: None,
+        })
+    }
+
+    /// A file's header, config files and first message.
+    #[allow(clippy::type_complexity)]
+    fn start(
+        source: R,
+    ) -> Result<
+        (
+            RecordingHeader,
+            Vec<ConfigFile>,
+            Records<R>,
+            Option<RecordedMessage>,
+        ),
+        RecordError,
+    > {
         let mut records = Records {
             source,
             reader: linear_reader::LinearReader::new_with_options(
@@ -101,7 +144,8 @@ impl<R: Read> RecordingReader<R> {
                     first = Some(message);
                     break;
                 }
-                Next::Other => {}
+                // A part ends after a step, so it holds messages before it says where it goes on.
+                Next::Continues(_) | Next::Other => {}
             }
         }
         let header = header.ok_or_else(|| {
@@ -109,12 +153,32 @@ impl<R: Read> RecordingReader<R> {
                 "no qosrt header (an MCAP file from another program?)".into(),
             )
         })?;
-        Ok(Self {
-            header,
-            config_files,
-            records,
-            first,
-        })
+        Ok((header, config_files, records, first))
+    }
+
+    /// The part after the one just read, where the recording goes on in `file`: the same
+    /// recording's next part, or why not.
+    fn next_part(&mut self, file: &str) -> Result<(), String> {
+        let parts = self.parts.as_ref().ok_or("it was not read from a file")?;
+        if std::path::Path::new(file).components().count() != 1 {
+            return Err(format!("{file:?} is not a file name"));
+        }
+        let source = (parts.open)(&parts.folder.join(file)).map_err(|e| e.to_string())?;
+        let (header, _, records, first) = Self::start(source).map_err(|e| e.to_string())?;
+        let expected = self.part + 1;
+        if header.part != expected || header.recording_id != self.header.recording_id {
+            return Err(format!(
+                "it is not part {expected} of this recording (part {} of {})",
+                header.part,
+                if header.recording_id.is_empty() {
+                    "another"
+                } else {
+                    &header.recording_id
+                }
+            ));
+        }
+        (self.records, self.first, self.part) = (records, first, expected);
+        Ok(())
     }
 
     /// Why the file ended before its end, once the messages are read.
@@ -187,6 +251,9 @@ impl<R: Read> Records<R> {
                 Record::Metadata(metadata) if metadata.name == HEADER_METADATA => {
                     Next::Header(Box::new(parse_header(&metadata.metadata)?))
                 }
+                Record::Metadata(metadata) if metadata.name == CONTINUES_METADATA => {
+                    Next::Continues(metadata.metadata.get("file").cloned().unwrap_or_default())
+                }
                 Record::Attachment { header, data, .. } => Next::Config(ConfigFile {
                     path: header.name,
                     data: data.into_owned(),
@@ -207,6 +274,21 @@ impl<R: Read> Iterator for RecordingReader<R> {
         loop {
             match self.records.next_record() {
                 Ok(Some(Next::Message(message))) => return Some(message),
+                Ok(Some(Next::Continues(file))) => {
+                    if self.parts.is_none() {
+                        // Read from memory: this part is all there is to read.
+                        self.continues_in = Some(file);
+                        return None;
+                    }
+                    if let Err(why) = self.next_part(&file) {
+                        self.records.truncated =
+                            Some(format!("the recording goes on in {file}, unread: {why}"));
+                        return None;
+                    }
+                    if let Some(first) = self.first.take() {
+                        return Some(first);
+                    }
+                }
                 Ok(Some(_)) => continue,
                 Ok(None) => return None,
                 Err(error) => {
@@ -220,17 +302,39 @@ impl<R: Read> Iterator for RecordingReader<R> {
 
 impl RecordingReader<std::io::BufReader<std::fs::File>> {
     /// Opens `path` as a recording.
+    /// Opens `path` as a recording; where a size budget split it, the messages go on through
+    /// every part.
     pub fn open(path: &std::path::Path) -> Result<Self, RecordError> {
-        let read_error = |source| RecordError::Read {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut file = std::fs::File::open(path).map_err(read_error)?;
-        let mut magic = [0u8; 8];
-        let magic_len = file.read(&mut magic).map_err(read_error)?;
-        check_magic(&magic[..magic_len])?;
-        file.rewind().map_err(read_error)?;
-        Self::new(std::io::BufReader::with_capacity(1 << 20, file))
+        let mut reader = Self::new(open_file(path)?)?;
+        reader.parts = Some(NextParts {
+            folder: path
+                .parent()
+                .unwrap_or(std::path::Path::new(""))
+                .to_path_buf(),
+            open: open_file,
+        });
+        Ok(reader)
+    }
+}
+
+/// A recording's file, checked to be MCAP.
+fn open_file(path: &std::path::Path) -> Result<std::io::BufReader<std::fs::File>, RecordError> {
+    let read_error = |source| RecordError::Read {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(read_error)?;
+    let mut magic = [0u8; 8];
+    let magic_len = file.read(&mut magic).map_err(read_error)?;
+    check_magic(&magic[..magic_len])?;
+    file.rewind().map_err(read_error)?;
+    Ok(std::io::BufReader::with_capacity(1 << 20, file))
+}
+
+impl<R: Read> RecordingReader<R> {
+    /// The part being read (0: the first).
+    pub fn part(&self) -> u32 {
+        self.part
     }
 }
 
@@ -272,6 +376,7 @@ fn collect<R: Read>(mut stream: RecordingReader<R>) -> Result<Recording, RecordE
     let messages = stream.by_ref().collect();
     Ok(Recording {
         truncated: stream.records.truncated.take(),
+        continues_in: stream.continues_in.take(),
         header: stream.header,
         config_files: stream.config_files,
         messages,

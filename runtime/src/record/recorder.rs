@@ -3,8 +3,11 @@
 //! the loop and the tasks only queue a message.
 
 use super::channels::{self as ch, ChannelSpec, MavlinkBatch, MavlinkRecord, StepRecord};
+use super::encoded::Encoded;
 use super::frame_hold::{DeliveredFrame, FrameHold};
-use super::{ConfigFile, FramePolicy, RecordError, RecordingHeader, HEADER_METADATA};
+pub use super::sink::RecordingSummary;
+use super::sink::{McapSink, Output};
+use super::{ConfigFile, FramePolicy, RecordError, RecordingHeader};
 use crate::bus::{Bus, Message, Topic};
 use crate::clock::Timestamp;
 use crate::governor::GovernorDecision;
@@ -19,7 +22,7 @@ use crate::topics::{
 use algorithms::vision::image::GrayImage;
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
-use std::io::{BufWriter, Cursor, Seek, SeekFrom, Write};
+use std::io::Cursor;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::mpsc;
@@ -41,28 +44,8 @@ pub struct RecorderOptions {
     pub outputs_only: bool,
     /// Which camera and depth frames to keep (the header says which were kept).
     pub frames: FramePolicy,
-}
-
-/// One message, encoded, on its way to the file.
-pub(super) struct Encoded {
-    pub spec: ChannelSpec,
-    pub log_time_ns: u64,
-    pub publish_time_ns: u64,
-    /// The MCAP sequence number; `None`: the channel's count.
-    pub sequence: Option<u32>,
-    pub data: Vec<u8>,
-}
-
-impl Encoded {
-    pub fn at(spec: ChannelSpec, time_ns: u64, data: Vec<u8>) -> Self {
-        Self {
-            spec,
-            log_time_ns: time_ns,
-            publish_time_ns: time_ns,
-            sequence: None,
-            data,
-        }
-    }
+    /// Each file's size budget: past it the recording goes on in a next part.
+    pub max_bytes: Option<u64>,
 }
 
 /// Work for the recorder's thread: encoding happens there, not on the caller's.
@@ -82,23 +65,6 @@ enum Work {
     Finish,
 }
 
-/// What a finished recording holds.
-#[derive(Debug, Clone, Default)]
-pub struct RecordingSummary {
-    pub file: Option<PathBuf>,
-    /// Messages per topic.
-    pub messages: BTreeMap<String, u64>,
-    pub bytes: u64,
-    /// The file itself, when kept in memory.
-    pub data: Option<Vec<u8>>,
-}
-
-impl RecordingSummary {
-    pub fn total_messages(&self) -> u64 {
-        self.messages.values().sum()
-    }
-}
-
 /// A recording in progress. Dropping it finishes the file; [`Recorder::finish`] also says how
 /// it went.
 pub struct Recorder {
@@ -107,6 +73,14 @@ pub struct Recorder {
     outputs_only: bool,
     frames: FramePolicy,
     live_port: Option<u16>,
+}
+
+/// An id for a new recording, which its parts share: when and by which process it began.
+fn recording_id() -> String {
+    let since_epoch = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    format!("{:x}-{:x}", since_epoch.as_nanos(), std::process::id())
 }
 
 /// A time on the runtime's clock in nanoseconds, rounded as the runner's own stamps are (so a
@@ -125,26 +99,32 @@ impl Recorder {
     ) -> Result<Self, RecordError> {
         let output = match (&options.file, options.in_memory) {
             (_, true) => Output::Memory(Cursor::new(Vec::new())),
-            (Some(path), false) => Output::File(BufWriter::new(
-                std::fs::File::create(path).map_err(|source| RecordError::Create {
-                    path: path.clone(),
-                    source,
-                })?,
-            )),
+            (Some(path), false) => Output::create(path)?,
             (None, false) => Output::None,
         };
-        let mut writer = McapSink::new(output, options.file.clone())?;
         let header = RecordingHeader {
             frames: options.frames,
+            recording_id: recording_id(),
             ..header.clone()
         };
-        writer.header(&header, config_files)?;
+        let writer = McapSink::new(
+            output,
+            options.file.clone(),
+            &header,
+            config_files,
+            options.max_bytes,
+        )?;
         let live = options.live.map(LiveServer::start).transpose()?;
         let live_port = live.as_ref().map(|l| l.port);
         let (jobs, receiver) = mpsc::channel::<Work>();
         let thread = std::thread::Builder::new()
             .name("qosrt-recorder".into())
-            .spawn(move || write_loop(receiver, writer, live))
+            .spawn(move || {
+                // Encoding and compressing wait for the time the mission leaves: a recording
+                // never slows the loop or the tasks on a busy companion.
+                crate::scheduler::lower_current_thread_priority(10);
+                write_loop(receiver, writer, live)
+            })
             .map_err(RecordError::Thread)?;
         Ok(Self {
             jobs: Some(jobs),
@@ -465,181 +445,6 @@ fn emit(
         writer.write(&message)?;
     }
     Ok(())
-}
-
-/// Where the MCAP bytes go.
-enum Output {
-    File(BufWriter<std::fs::File>),
-    Memory(Cursor<Vec<u8>>),
-    /// Live only.
-    None,
-}
-
-impl Write for Output {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        match self {
-            Output::File(f) => f.write(buf),
-            Output::Memory(m) => m.write(buf),
-            Output::None => Ok(buf.len()),
-        }
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        match self {
-            Output::File(f) => f.flush(),
-            Output::Memory(m) => m.flush(),
-            Output::None => Ok(()),
-        }
-    }
-}
-
-impl Seek for Output {
-    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
-        match self {
-            Output::File(f) => f.seek(pos),
-            Output::Memory(m) => m.seek(pos),
-            Output::None => Ok(0),
-        }
-    }
-}
-
-/// The MCAP writer with its channels.
-struct McapSink {
-    writer: Option<mcap::Writer<Output>>,
-    path: Option<PathBuf>,
-    channel_ids: HashMap<&'static str, u16>,
-    sequences: HashMap<&'static str, u32>,
-    counts: BTreeMap<String, u64>,
-}
-
-impl McapSink {
-    fn new(output: Output, path: Option<PathBuf>) -> Result<Self, RecordError> {
-        let writer = match output {
-            Output::None => None,
-            output => Some(
-                mcap::WriteOptions::new()
-                    .profile("qosrt")
-                    .library(concat!("qosrt ", env!("CARGO_PKG_VERSION")))
-                    .compression(Some(mcap::Compression::Zstd))
-                    .compression_level(1)
-                    // Compression on this thread: the mission's cores stay with the tasks.
-                    .compression_threads(0)
-                    .create(output)
-                    .map_err(RecordError::Mcap)?,
-            ),
-        };
-        Ok(Self {
-            writer,
-            path,
-            channel_ids: HashMap::new(),
-            sequences: HashMap::new(),
-            counts: BTreeMap::new(),
-        })
-    }
-
-    /// The run's header (metadata) and the config files it flew (attachments).
-    fn header(
-        &mut self,
-        header: &RecordingHeader,
-        config_files: &[ConfigFile],
-    ) -> Result<(), RecordError> {
-        let Some(writer) = &mut self.writer else {
-            return Ok(());
-        };
-        let json = serde_json::to_string(header).expect("the header serialises");
-        writer
-            .write_metadata(&mcap::records::Metadata {
-                name: HEADER_METADATA.into(),
-                metadata: BTreeMap::from([("header".to_string(), json)]),
-            })
-            .map_err(RecordError::Mcap)?;
-        for file in config_files {
-            writer
-                .attach(&mcap::Attachment {
-                    log_time: 0,
-                    create_time: 0,
-                    name: file.path.clone(),
-                    media_type: "application/toml".into(),
-                    data: std::borrow::Cow::Borrowed(&file.data),
-                })
-                .map_err(RecordError::Mcap)?;
-        }
-        Ok(())
-    }
-
-    fn write(&mut self, message: &Encoded) -> Result<(), RecordError> {
-        let topic = message.spec.topic;
-        let count = self.counts.entry(topic.to_string()).or_default();
-        *count += 1;
-        let Some(writer) = &mut self.writer else {
-            return Ok(());
-        };
-        let channel_id = match self.channel_ids.get(topic) {
-            Some(&id) => id,
-            None => {
-                let schema = message.spec.schema();
-                let schema_id = writer
-                    .add_schema(&schema.name, &schema.encoding, &schema.data)
-                    .map_err(RecordError::Mcap)?;
-                let id = writer
-                    .add_channel(
-                        schema_id,
-                        topic,
-                        message.spec.message_encoding(),
-                        &BTreeMap::new(),
-                    )
-                    .map_err(RecordError::Mcap)?;
-                self.channel_ids.insert(topic, id);
-                id
-            }
-        };
-        let next = self.sequences.entry(topic).or_default();
-        *next += 1;
-        writer
-            .write_to_known_channel(
-                &mcap::records::MessageHeader {
-                    channel_id,
-                    sequence: message.sequence.unwrap_or(*next),
-                    log_time: message.log_time_ns,
-                    publish_time: message.publish_time_ns,
-                },
-                &message.data,
-            )
-            .map_err(RecordError::Mcap)
-    }
-
-    /// Closes the chunk: everything so far stays readable if the process dies.
-    fn flush(&mut self) -> Result<(), RecordError> {
-        match &mut self.writer {
-            Some(writer) => writer.flush().map_err(RecordError::Mcap),
-            None => Ok(()),
-        }
-    }
-
-    fn finish(mut self) -> Result<RecordingSummary, RecordError> {
-        let mut summary = RecordingSummary {
-            file: self.path.clone(),
-            messages: std::mem::take(&mut self.counts),
-            ..RecordingSummary::default()
-        };
-        if let Some(mut writer) = self.writer.take() {
-            writer.finish().map_err(RecordError::Mcap)?;
-            match writer.into_inner() {
-                Output::File(file) => {
-                    let file = file
-                        .into_inner()
-                        .map_err(|e| RecordError::Io(e.into_error()))?;
-                    summary.bytes = file.metadata().map_err(RecordError::Io)?.len();
-                }
-                Output::Memory(memory) => {
-                    let data = memory.into_inner();
-                    summary.bytes = data.len() as u64;
-                    summary.data = Some(data);
-                }
-                Output::None => {}
-            }
-        }
-        Ok(summary)
-    }
 }
 
 /// The channels served live over the Foxglove WebSocket protocol.

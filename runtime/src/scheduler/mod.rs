@@ -59,6 +59,7 @@ mod virtual_time;
 #[cfg(test)]
 mod tests;
 
+pub(crate) use real_time::os::lower_current_thread_priority;
 pub use real_time::{PinError, Pinning, RealTimeOptions, RealTimeScheduler};
 pub use resources::{ExclusiveResource, ResourceError, ResourceLease, Resources};
 pub use stats::{DurationSummary, TaskStats};

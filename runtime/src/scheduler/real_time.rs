@@ -472,7 +472,7 @@ fn worker_main(
 }
 
 #[cfg(target_os = "linux")]
-mod os {
+pub(crate) mod os {
     use super::PinError;
 
     /// Timer slack lets the kernel coalesce wake-ups up to 50 µs late by default; a periodic
@@ -483,6 +483,17 @@ mod os {
         let result = unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0) };
         if result != 0 {
             tracing::debug!(error = %std::io::Error::last_os_error(), "could not lower the timer slack");
+        }
+    }
+
+    /// Lowers the calling thread's scheduling priority (a nice value of `nice`, 1..=19): it
+    /// then runs in the time the mission's threads leave, never instead of them.
+    pub fn lower_current_thread_priority(nice: i32) {
+        // SAFETY: setpriority with PRIO_PROCESS and id 0 acts on the calling thread only (Linux
+        // gives each thread its own nice value); no memory is passed.
+        let result = unsafe { libc::setpriority(libc::PRIO_PROCESS, 0, nice) };
+        if result != 0 {
+            tracing::debug!(error = %std::io::Error::last_os_error(), "could not lower the thread's priority");
         }
     }
 
@@ -524,8 +535,10 @@ mod os {
 }
 
 #[cfg(not(target_os = "linux"))]
-mod os {
+pub(crate) mod os {
     pub fn set_fine_timer_slack() {}
+
+    pub fn lower_current_thread_priority(_nice: i32) {}
 
     pub fn pin_current_thread(_cores: &[usize]) -> Result<(), super::PinError> {
         Err(super::PinError::Unsupported)

@@ -330,18 +330,7 @@ impl<'a> Harness<'a> {
     ) -> Result<SimOutcome, SimError> {
         self.runner.stop();
         if let Some(summary) = self.runner.finish_recording().transpose()? {
-            let file = summary
-                .file
-                .as_ref()
-                .map_or_else(String::new, |path| format!(" to {}", path.display()));
-            self.events.push((
-                end_s,
-                format!(
-                    "recorded {} messages ({:.1} MB){file}",
-                    summary.total_messages(),
-                    summary.bytes as f64 / 1e6,
-                ),
-            ));
+            self.events.push((end_s, summary.describe()));
         }
         let failed_tasks = failed_tasks(&**self.runner.scheduler());
         let log = self.runner.log();

@@ -43,6 +43,16 @@ pub enum ReplayError {
     Record(#[from] RecordError),
     #[error("cannot set up the replay: {0}")]
     Setup(#[source] RunnerError),
+    #[error(
+        "this file is part {part} of a recording split by its size budget, and begins at \
+         t = {starts_s:.3} s, mid-mission: replay its first part, {first}, which goes on \
+         through every part"
+    )]
+    LaterPart {
+        part: u32,
+        starts_s: f64,
+        first: String,
+    },
     #[error("the recording's {topic} message at t = {time_s:.3} s is unreadable: {source}")]
     BadMessage {
         topic: &'static str,
@@ -120,6 +130,14 @@ pub fn replay(
 ) -> Result<ReplayReport, ReplayError> {
     let mut recording = RecordingReader::open(path)?;
     let header = &recording.header.clone();
+    if header.part > 0 {
+        // The runner's and the tasks' state at a part's start lives only in the parts before.
+        return Err(ReplayError::LaterPart {
+            part: header.part,
+            starts_s: header.part_starts_ns.unwrap_or(0) as f64 * 1e-9,
+            first: header.first_part.clone().unwrap_or_default(),
+        });
+    }
     let without_frames = tasks_without_frames(header, &model, registry);
     // The phases flown for as long as they were, where the config has the same phases.
     let phases = &mut model.config.mission.phases;
