@@ -5,7 +5,7 @@ use runtime::record::{FramePolicy, RecorderOptions};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
-/// Recording and live view, for `qosrt sim` and `qosrt run`.
+/// Recording, the live view and ROS 2, for `qosrt sim` and `qosrt run`.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct RecordArgs {
     /// Record the mission to this MCAP file (frames, telemetry, every topic and decision, the
@@ -28,6 +28,11 @@ pub struct RecordArgs {
     /// FILE.mcap` follows them). (Default: the config's `[record] max_mb`, else no budget.)
     #[arg(long, value_name = "MB", value_parser = clap::value_parser!(u64).range(1..))]
     pub record_max_mb: Option<u64>,
+    /// Publish the mission on ROS 2 (DDS, domain 0) under /qosrt/VEHICLE/: pose, battery,
+    /// velocity setpoint, phase, governor decisions, task diagnostics. `qosrt sim` then flies
+    /// on the wall clock, as a flight does.
+    #[arg(long, value_name = "VEHICLE", num_args = 0..=1, require_equals = true, default_missing_value = "vehicle_1")]
+    pub ros2: Option<String>,
 }
 
 impl RecordArgs {

@@ -230,6 +230,12 @@ fn start_runner(args: &FlyArgs) -> Result<Runner, Failure> {
         camera,
         runner_options.clone(),
     )?;
+    if let Some(vehicle) = &args.recording.ros2 {
+        let capacity_ah = loaded.config.battery.capacity_ah().unwrap_or(f64::NAN);
+        let node = runtime::ros2::Ros2Node::start(vehicle, capacity_ah)?;
+        tracing::info!("publishing ROS 2 topics under {}", node.namespace());
+        runner.observe(Box::new(node));
+    }
     if let Some(options) = args.recording.options(&loaded.config) {
         let files = ConfigFile::collect(&args.file, &loaded.config)?;
         let mut header = RecordingHeader::new(

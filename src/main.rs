@@ -42,7 +42,7 @@ struct Cli {
 enum Command {
     /// Fly the whole mission in the built-in simulator: vehicle, tractor, wind, camera, battery
     /// and a MAVLink autopilot over UDP, with the real runtime and tasks, in virtual time.
-    Sim(sim::args::SimArgs),
+    Sim(Box<sim::args::SimArgs>),
     /// Re-run a recorded mission's tasks on its recorded frames, telemetry and clock, and say
     /// where their outputs differ from the recording (none: bit for bit).
     Replay(replay::ReplayArgs),
@@ -298,9 +298,11 @@ fn join_optional_values(args: impl IntoIterator<Item = OsString>) -> Vec<OsStrin
 /// Flying logs what it does as it goes (mode changes, QoS changes, faults); the other commands
 /// print their results and log only warnings.
 fn default_log_level(command: &Command) -> &'static str {
+    // RustDDS (the ROS 2 node) warns of every datagram a network it cannot reach refuses (an
+    // IPv6 locator on an IPv4-only host): its errors are what a user needs.
     match command {
-        Command::Run { dry_run: false, .. } => "info",
-        _ => "warn",
+        Command::Run { dry_run: false, .. } => "info,rustdds=error",
+        _ => "warn,rustdds=error",
     }
 }
 

@@ -4,22 +4,7 @@
 mod common;
 use common::{output_text, qosrt};
 
-/// The short mission of seed 2 recorded to `file`, with `extra` flags.
-fn record(file: &std::path::Path, extra: &[&str]) -> std::process::Output {
-    let mut args = vec![
-        "sim",
-        "--tracking-s",
-        "3",
-        "--seed",
-        "2",
-        "--record",
-        file.to_str().unwrap(),
-    ];
-    args.extend(extra);
-    let sim = qosrt(&args);
-    assert!(sim.status.success(), "{}", output_text(&sim));
-    sim
-}
+use common::record_short_mission as record;
 
 #[test]
 fn a_recorded_simulation_replays_with_no_difference_and_a_slower_detector_differs() {

@@ -19,6 +19,8 @@ pub mod power_meter;
 pub mod profile_sweep;
 pub mod record;
 pub mod registry;
+#[cfg(feature = "ros2")]
+pub mod ros2;
 pub mod scheduler;
 pub mod task;
 pub mod telemetry;

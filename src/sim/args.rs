@@ -183,6 +183,9 @@ impl SimArgs {
                 command: self.autopilot_cmd.clone(),
                 connect_timeout: std::time::Duration::from_secs(60),
             }),
+            ros2_vehicle: self.recording.ros2.clone(),
+            // ROS 2's tools watch a mission at the pace of a flight.
+            real_time: self.recording.ros2.is_some(),
             ..SimOptions::default()
         }
     }

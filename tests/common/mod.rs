@@ -126,3 +126,20 @@ pub fn qosrt_spawn(subcommand: &str, config: &Path, args: &[&str]) -> Child {
 pub fn qosrt_run(config: &Path, args: &[&str]) -> Child {
     qosrt_spawn("run", config, args)
 }
+
+/// The short mission of seed 2 recorded to `file`, with `extra` flags.
+pub fn record_short_mission(file: &std::path::Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "sim",
+        "--tracking-s",
+        "3",
+        "--seed",
+        "2",
+        "--record",
+        file.to_str().unwrap(),
+    ];
+    args.extend(extra);
+    let sim = qosrt(&args);
+    assert!(sim.status.success(), "{}", output_text(&sim));
+    sim
+}

@@ -304,6 +304,15 @@ impl Battery {
             .unwrap_or(DEFAULT_CELL_RESISTANCE_OHM * f64::from(self.cell_count))
     }
 
+    /// Nominal charge: `capacity_mah`, or `capacity_wh` ÷ nominal pack voltage.
+    pub fn capacity_ah(&self) -> Option<f64> {
+        match (self.capacity_wh, self.capacity_mah) {
+            (None, Some(mah)) => Some(mah / 1000.0),
+            (Some(wh), None) => Some(wh / self.nominal_voltage_v()),
+            _ => None,
+        }
+    }
+
     /// Nominal energy content: `capacity_wh`, or `capacity_mah` × nominal pack voltage.
     pub fn capacity_wh(&self) -> Option<f64> {
         match (self.capacity_wh, self.capacity_mah) {

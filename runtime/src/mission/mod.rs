@@ -3,12 +3,14 @@
 //! what a run logs.
 
 pub mod input_rates;
+pub mod observer;
 pub mod replay;
 pub mod report;
 pub mod runner;
 pub mod sequencer;
 
 pub use crate::governor::GovernorDecision;
+pub use observer::MissionObserver;
 pub use replay::{replay, ChannelDiff, ReplayError, ReplayOptions, ReplayReport};
 pub use report::MissionLog;
 pub use runner::{describe_mission, MissionRunner, RunnerError, RunnerOptions, StepReport};

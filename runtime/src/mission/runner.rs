@@ -8,6 +8,7 @@
 //! harness in lockstep with its world on a [`VirtualScheduler`](crate::scheduler::VirtualScheduler).
 
 use super::input_rates::InputRateMeter;
+use super::observer::MissionObserver;
 use super::report::MissionLog;
 use super::sequencer::{
     AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, PhaseKind,
@@ -59,6 +60,8 @@ pub const SETPOINT_MAX_AGE_S: f64 = 0.5;
 
 /// Frames whose arrival is remembered: a fix comes from one of the last few.
 const ARRIVALS_KEPT: usize = 16;
+/// How often the observers hear the tasks' statistics when no level changes.
+const OBSERVED_TASKS_PERIOD_S: f64 = 1.0;
 /// How long a lockstep poll waits for the simulated autopilot (wall clock).
 pub const LOCKSTEP_TIMEOUT: Duration = Duration::from_secs(5);
 
@@ -140,6 +143,9 @@ pub struct MissionRunner<S: TaskScheduler> {
     /// Where the run is recorded, if it is, and the levels it last recorded.
     recorder: Option<Recorder>,
     recorded_levels: Option<Vec<TaskLevel>>,
+    /// Who else hears of the mission (the ROS 2 node), the levels they last heard, and when.
+    observers: Vec<Box<dyn MissionObserver>>,
+    observed_tasks: Option<(Vec<TaskLevel>, f64)>,
     /// How often the topics that trigger tasks deliver, and their publish counters.
     input_rates: InputRateMeter,
     input_activity: Vec<std::sync::Arc<crate::bus::TopicActivity>>,
@@ -210,6 +216,8 @@ impl<S: TaskScheduler> MissionRunner<S> {
             stream_requests: (0, f64::NEG_INFINITY),
             recorder: None,
             recorded_levels: None,
+            observers: Vec::new(),
+            observed_tasks: None,
         })
     }
 
@@ -220,6 +228,30 @@ impl<S: TaskScheduler> MissionRunner<S> {
         self.link.start_capture();
         self.recorder = Some(recorder);
         Ok(())
+    }
+
+    /// Tells `observer` what the mission does from now on.
+    pub fn observe(&mut self, observer: Box<dyn MissionObserver>) {
+        self.observers.push(observer);
+    }
+
+    /// The tasks' levels and statistics for the observers: when a level changes, and once a
+    /// second.
+    fn observe_tasks(&mut self, now_s: f64) {
+        if self.observers.is_empty() {
+            return;
+        }
+        let levels = self.with_fixed(self.governor.current_levels());
+        if let Some((observed, at_s)) = &self.observed_tasks {
+            if *observed == levels && now_s - at_s < OBSERVED_TASKS_PERIOD_S {
+                return;
+            }
+        }
+        let (named, stats) = (self.named_levels(&levels), self.scheduler.stats());
+        for observer in &self.observers {
+            observer.tasks(now_s, &named, &stats);
+        }
+        self.observed_tasks = Some((levels, now_s));
     }
 
     /// Ends the recording (after [`Self::stop`]: the tasks' statistics go in last).
@@ -346,6 +378,14 @@ impl<S: TaskScheduler> MissionRunner<S> {
         // A velocity setpoint carries the capture of the frame whose fix it answers.
         let answered_capture_s = self.relative.peek().and_then(|m| m.value.last_fix_time_s);
         for command in &commands {
+            if let VehicleCommand::VelocityNed {
+                velocity_ned_m_s, ..
+            } = command
+            {
+                for observer in &self.observers {
+                    observer.velocity_setpoint(now_s, velocity_ned_m_s);
+                }
+            }
             match (command, answered_capture_s) {
                 (VehicleCommand::VelocityNed { .. }, Some(capture_s)) => {
                     self.link.send_stamped(command, capture_s)?
@@ -358,6 +398,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             self.link.end_tick(t_ns)?;
         }
         self.record_step(now_s, lockstep);
+        self.observe_tasks(now_s);
         self.log
             .loop_step
             .record(started.elapsed().as_nanos() as u64);
@@ -452,6 +493,9 @@ impl<S: TaskScheduler> MissionRunner<S> {
         let now_s = now.as_secs_f64();
         if let Some(state) = update.vehicle_state {
             self.vehicle_topic.publish(now, state);
+            for observer in &self.observers {
+                observer.vehicle(now_s, &state);
+            }
             self.vehicle_history.push(AttitudeSample {
                 time_s: now_s,
                 attitude: state.attitude,
@@ -468,6 +512,9 @@ impl<S: TaskScheduler> MissionRunner<S> {
             return Ok(());
         };
         self.log.battery(sample);
+        for observer in &self.observers {
+            observer.battery(&sample);
+        }
         if let Some(recorder) = &self.recorder {
             recorder.battery(
                 now_s,
@@ -498,6 +545,9 @@ impl<S: TaskScheduler> MissionRunner<S> {
                     );
                     if let Some(recorder) = &self.recorder {
                         recorder.governor(decision.clone());
+                    }
+                    for observer in &self.observers {
+                        observer.governor(&decision);
                     }
                     self.log.governor(decision);
                 }
@@ -612,6 +662,10 @@ impl<S: TaskScheduler> MissionRunner<S> {
             return Ok(());
         }
         self.phase = phase;
+        let phase_name = phase.map(|index| self.model.config.mission.phases[index].name.as_str());
+        for observer in &self.observers {
+            observer.phase(now.as_secs_f64(), phase_name);
+        }
         // The sequencer's change reaches the tasks, the scheduler and the governor at once.
         match phase {
             Some(index) => {

@@ -12,6 +12,7 @@ use runtime::mission::{
 };
 use runtime::record::{Recorder, RecordingHeader, RecordingSource};
 use runtime::registry::PluginRegistry;
+use runtime::ros2::Ros2Node;
 use runtime::scheduler::{Pinning, RealTimeOptions, SchedulerBuilder, TaskScheduler};
 use sim::autopilot::MavlinkAutopilot;
 use sim::camera::SimCameraConfig;
@@ -495,6 +496,15 @@ fn start_runner(
         RunnerError::FixedLevel { task, value, why } => SimError::FixedLevel { task, value, why },
         other => SimError::Setup(other.into()),
     })?;
+    if let Some(vehicle) = &options.ros2_vehicle {
+        let capacity_ah = model.config.battery.capacity_ah().unwrap_or(f64::NAN);
+        let node = Ros2Node::start(vehicle, capacity_ah)?;
+        events.push((
+            0.0,
+            format!("publishing ROS 2 topics under {}", node.namespace()),
+        ));
+        runner.observe(Box::new(node));
+    }
     let Some(record) = &options.record else {
         return Ok(runner);
     };

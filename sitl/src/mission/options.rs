@@ -48,6 +48,8 @@ pub struct SimOptions {
     /// A real PX4 or ArduPilot flies the world's vehicle (the world its physics backend);
     /// `None`: the built-in autopilot.
     pub autopilot: Option<RealAutopilot>,
+    /// Publish the mission on ROS 2 under `/qosrt/<this vehicle>/` (`--ros2`).
+    pub ros2_vehicle: Option<String>,
 }
 
 /// How far a flying mission is.
@@ -101,6 +103,8 @@ pub enum SimError {
     Link(#[source] Cause),
     #[error(transparent)]
     Record(#[from] RecordError),
+    #[error(transparent)]
+    Ros2(#[from] runtime::ros2::Ros2Error),
     #[error(
         "the built-in autopilot has no precision landing of its own, and this mission asks for one \
          ([link] landing_target = true, no landing task in the last phase): fly it with \

@@ -1,0 +1,243 @@
+//! `qosrt sim --ros2` seen by an independent ROS 2 client: Eclipse Cyclone DDS's Python binding
+//! (from PyPI, into a virtual environment under `target/`), subscribing to `rt/qosrt/<vehicle>/…`
+//! with ROS 2's type names and CDR layouts. Every message it receives must carry the values the
+//! run recorded for the same instant.
+
+mod common;
+use common::{output_text, repo_root};
+use serde_json::Value;
+use std::collections::BTreeMap;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+
+/// A Python with Cyclone DDS's binding, installed once under `target/`; `None`, said, where it
+/// cannot be installed (no network to PyPI, no Python).
+fn cyclonedds_python() -> Option<PathBuf> {
+    let venv = repo_root().join("target/ros2-test-venv");
+    let python = venv.join("bin/python");
+    let has_binding = |python: &PathBuf| {
+        Command::new(python)
+            .args(["-c", "import cyclonedds.domain"])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    if has_binding(&python) {
+        return Some(python);
+    }
+    let steps: [&[&str]; 2] = [
+        &["python3", "-m", "venv", venv.to_str().unwrap()],
+        &[
+            python.to_str().unwrap(),
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "cyclonedds==11.0.1",
+        ],
+    ];
+    for step in steps {
+        let status = Command::new(step[0]).args(&step[1..]).output();
+        if !status.as_ref().is_ok_and(|o| o.status.success()) {
+            eprintln!(
+                "skipped: cannot install Cyclone DDS's Python binding ({}): {:?}",
+                step.join(" "),
+                status.map(|o| String::from_utf8_lossy(&o.stderr).into_owned())
+            );
+            return None;
+        }
+    }
+    has_binding(&python).then_some(python)
+}
+
+/// The messages of `topic` in the recording, as JSON, with their log times in seconds.
+fn recorded(recording: &runtime::record::Recording, topic: &str) -> Vec<(f64, Value)> {
+    recording
+        .topic(topic)
+        .map(|m| {
+            let value = serde_json::from_slice(&m.data).unwrap_or(Value::Null);
+            (m.log_time_ns as f64 * 1e-9, value)
+        })
+        .collect()
+}
+
+fn close(a: f64, b: f64, tolerance: f64) -> bool {
+    (a - b).abs() <= tolerance
+}
+
+#[test]
+fn an_independent_ros2_client_receives_what_the_mission_recorded() {
+    let Some(python) = cyclonedds_python() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("m.mcap");
+    // A vehicle name of this run's own: other runs on the machine share DDS domain 0.
+    let vehicle = format!("test_{}", std::process::id());
+    let mut listener = Command::new(&python)
+        .arg(repo_root().join("tests/ros2/listen.py"))
+        .args([vehicle.as_str(), "60"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(listener.stdout.take().unwrap()).lines();
+    assert_eq!(lines.next().unwrap().unwrap(), "ready");
+    let received = std::thread::spawn(move || {
+        let mut received: BTreeMap<String, Vec<Value>> = BTreeMap::new();
+        for line in lines.map_while(Result::ok) {
+            let message: Value = serde_json::from_str(&line).unwrap();
+            let topic = message["topic"].as_str().unwrap().to_string();
+            let last_phase =
+                topic == "phase" && message["data"].as_str().unwrap().ends_with("null}");
+            received.entry(topic).or_default().push(message);
+            if last_phase {
+                break;
+            }
+        }
+        received
+    });
+    let sim = common::record_short_mission(&file, &[&format!("--ros2={vehicle}")]);
+    assert!(
+        output_text(&sim).contains(&format!("publishing ROS 2 topics under /qosrt/{vehicle}")),
+        "{}",
+        output_text(&sim)
+    );
+    let received = received.join().unwrap();
+    let _ = listener.kill();
+    let _ = listener.wait();
+    let counts: BTreeMap<&String, usize> = received.iter().map(|(t, m)| (t, m.len())).collect();
+    eprintln!("received: {counts:?}");
+    let recording = runtime::record::read_recording_file(&file).unwrap();
+
+    // The phases, in order, each as it began; the end of the mission last.
+    let phases: Vec<Value> = received["phase"]
+        .iter()
+        .map(|m| serde_json::from_str::<Value>(m["data"].as_str().unwrap()).unwrap())
+        .collect();
+    let flown: Vec<Value> = recorded(&recording, "/bus/mission/phase")
+        .into_iter()
+        .map(|(_, phase)| phase["name"].clone())
+        .chain([Value::Null])
+        .collect();
+    let heard: Vec<Value> = phases.iter().map(|p| p["phase"].clone()).collect();
+    assert!(flown.ends_with(&heard), "heard {heard:?}, flown {flown:?}");
+    assert!(heard.len() >= 2, "{heard:?}");
+
+    // Each battery reading as the autopilot sent it: ROS's signs, f32.
+    let batteries = recorded(&recording, "/qosrt/battery");
+    let readings = &received["battery"];
+    assert!(readings.len() >= 5, "{} battery messages", readings.len());
+    for reading in readings {
+        let t = reading["t"].as_f64().unwrap();
+        let (_, sample) = batteries
+            .iter()
+            .find(|(_, b)| close(b["telemetry"]["time_s"].as_f64().unwrap(), t, 1e-6))
+            .unwrap_or_else(|| panic!("no recorded battery reading at {t}"));
+        let telemetry = &sample["telemetry"];
+        let as_f32 = |v: &Value| v.as_f64().map(|v| v as f32 as f64);
+        assert_eq!(
+            reading["voltage"].as_f64(),
+            as_f32(&telemetry["voltage_v"]),
+            "{reading}"
+        );
+        assert_eq!(
+            reading["current"].as_f64(),
+            as_f32(&telemetry["current_a"]).map(|a| -a),
+            "{reading}"
+        );
+        assert_eq!(
+            reading["percentage"].as_f64(),
+            as_f32(&telemetry["remaining_fraction"]),
+            "{reading}"
+        );
+        assert_eq!(reading["design_capacity"], 5.0, "the config's 5000 mAh");
+    }
+
+    // The pose in ENU: east, north, up; the heading turned to ENU's yaw (from east, to the
+    // left), worked out here from the recorded NED state, not by the runtime's conversion.
+    let states = recorded(&recording, "/bus/vehicle/state");
+    let poses = &received["pose"];
+    assert!(poses.len() >= 50, "{} poses", poses.len());
+    for pose in poses {
+        let t = pose["t"].as_f64().unwrap();
+        let (_, state) = states
+            .iter()
+            .find(|(time_s, _)| close(*time_s, t, 1e-6))
+            .unwrap_or_else(|| panic!("no recorded vehicle state at {t}"));
+        let ned: Vec<f64> = serde_json::from_value(state["position_ned_m"].clone()).unwrap();
+        let position: Vec<f64> = serde_json::from_value(pose["position"].clone()).unwrap();
+        assert_eq!(position, [ned[1], ned[0], -ned[2]], "{pose}");
+        let [x, y, z, w]: [f64; 4] = serde_json::from_value(pose["orientation"].clone()).unwrap();
+        let yaw_enu = (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z));
+        let yaw_ned = state["attitude"]["yaw_rad"].as_f64().unwrap();
+        let turned = std::f64::consts::FRAC_PI_2 - yaw_ned - yaw_enu;
+        assert!(
+            close(turned.sin(), 0.0, 1e-9) && turned.cos() > 0.0,
+            "{pose} {state}"
+        );
+        assert_eq!(pose["frame"], "map");
+    }
+
+    // Each velocity setpoint as the link sent it (SET_POSITION_TARGET_LOCAL_NED's f32s).
+    let sent: Vec<(f64, [f64; 3])> = recording
+        .topic("/mavlink/out")
+        .filter_map(|m| {
+            let record: runtime::record::channels::MavlinkRecord =
+                serde_json::from_slice(&m.data).ok()?;
+            match record.message().ok()?.1 {
+                mavlink::dialects::common::MavMessage::SET_POSITION_TARGET_LOCAL_NED(s) => Some((
+                    m.log_time_ns as f64 * 1e-9,
+                    [f64::from(s.vx), f64::from(s.vy), f64::from(s.vz)],
+                )),
+                _ => None,
+            }
+        })
+        .collect();
+    let setpoints = &received["velocity_setpoint"];
+    assert!(setpoints.len() >= 10, "{} setpoints", setpoints.len());
+    for setpoint in setpoints {
+        let t = setpoint["t"].as_f64().unwrap();
+        let linear: Vec<f64> = serde_json::from_value(setpoint["linear"].clone()).unwrap();
+        let matching = sent.iter().any(|(time_s, ned)| {
+            close(*time_s, t, 1e-6)
+                && close(linear[0], ned[1], 1e-5)
+                && close(linear[1], ned[0], 1e-5)
+                && close(linear[2], -ned[2], 1e-5)
+        });
+        assert!(matching, "no setpoint sent at {t} as {setpoint}");
+    }
+
+    // Every task's level, as the mission last recorded them.
+    let levels = recorded(&recording, "/qosrt/qos_levels");
+    let (_, last_levels) = levels.last().unwrap();
+    let diagnostics = received["diagnostics"].last().unwrap();
+    let statuses = diagnostics["status"].as_array().unwrap();
+    let tasks = last_levels["tasks"].as_object().unwrap();
+    assert_eq!(statuses.len(), tasks.len(), "{diagnostics}");
+    for (task, level) in tasks {
+        let status = statuses
+            .iter()
+            .find(|s| s["name"] == format!("qosrt/{task}"))
+            .unwrap_or_else(|| panic!("no diagnostics of {task}: {diagnostics}"));
+        assert_eq!(status["values"]["level"], level["level"].to_string());
+        assert!(
+            status["values"]["activations"]
+                .as_str()
+                .unwrap()
+                .parse::<u64>()
+                .unwrap()
+                > 0
+        );
+    }
+
+    // The governor's decisions, each as recorded.
+    let decisions: Vec<Value> = recorded(&recording, "/qosrt/governor")
+        .into_iter()
+        .map(|(_, d)| d)
+        .collect();
+    for message in received.get("governor").into_iter().flatten() {
+        let decision: Value = serde_json::from_str(message["data"].as_str().unwrap()).unwrap();
+        assert!(decisions.contains(&decision), "{decision}");
+    }
+}
