@@ -4,6 +4,7 @@ mod args;
 mod check;
 mod detect;
 mod evaluate;
+mod fleet;
 mod fly;
 mod frames;
 mod load;
@@ -46,6 +47,10 @@ enum Command {
     /// Re-run a recorded mission's tasks on its recorded frames, telemetry and clock, and say
     /// where their outputs differ from the recording (none: bit for bit).
     Replay(replay::ReplayArgs),
+    /// The ground station's view of every vehicle flying with --ros2 (phase, battery, energy
+    /// margin, time left, levels), and `qosrt fleet set VEHICLE reserve=0.3` to change a
+    /// vehicle's plan in flight.
+    Fleet(fleet::FleetArgs),
     /// Validate a mission's QoS config and print a summary of it.
     Check {
         /// The mission config.
@@ -188,6 +193,7 @@ fn main() -> ExitCode {
         } => check::run(&file, json, graph.or(graph_format)),
         Command::Sim(args) => sim::run(&args),
         Command::Replay(args) => replay::run(&args),
+        Command::Fleet(args) => fleet::run(&args),
         Command::Profile(args) => profile::run(&args),
         Command::PtuStereo(args) => ptu_stereo::run(&args),
         Command::Detect {
@@ -298,11 +304,12 @@ fn join_optional_values(args: impl IntoIterator<Item = OsString>) -> Vec<OsStrin
 /// Flying logs what it does as it goes (mode changes, QoS changes, faults); the other commands
 /// print their results and log only warnings.
 fn default_log_level(command: &Command) -> &'static str {
-    // RustDDS (the ROS 2 node) warns of every datagram a network it cannot reach refuses (an
-    // IPv6 locator on an IPv4-only host): its errors are what a user needs.
+    // RustDDS (the ROS 2 node) logs every datagram a network it cannot reach refuses (an IPv6
+    // locator on an IPv4-only host) and, as errors, the events it gets after its entities are
+    // gone at the end: noise to a user (RUST_LOG=rustdds=warn shows it).
     match command {
-        Command::Run { dry_run: false, .. } => "info,rustdds=error",
-        _ => "warn,rustdds=error",
+        Command::Run { dry_run: false, .. } => "info,rustdds=off",
+        _ => "warn,rustdds=off",
     }
 }
 

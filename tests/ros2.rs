@@ -241,3 +241,117 @@ fn an_independent_ros2_client_receives_what_the_mission_recorded() {
         assert!(decisions.contains(&decision), "{decision}");
     }
 }
+
+/// The ground station's view: two vehicles flying with `--ros2` are found on the network,
+/// each with its phase and energy margin; one's reserve is changed in flight and the change is
+/// answered and seen in its status, the other's is refused out of range, and a vehicle that is
+/// not there is a named error.
+#[test]
+fn the_fleet_sees_every_vehicle_and_changes_one_plan_in_flight() {
+    let names = [1, 2].map(|n| format!("fleet_{}_{n}", std::process::id()));
+    let vehicles: Vec<std::process::Child> = names
+        .iter()
+        .enumerate()
+        .map(|(seed, name)| {
+            Command::new(env!("CARGO_BIN_EXE_qosrt"))
+                .current_dir(repo_root())
+                .args(["sim", "--tracking-s", "60", "--seed", &seed.to_string()])
+                .arg(format!("--ros2={name}"))
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    let fleet = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_qosrt"))
+            .arg("fleet")
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let ours = |snapshot: &Value, name: &str| {
+        snapshot["vehicles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|v| v["vehicle"] == name)
+            .cloned()
+    };
+    // One view for the whole test, as a ground station keeps it open: its snapshots in order.
+    let view_started = std::time::Instant::now();
+    let mut view = Command::new(env!("CARGO_BIN_EXE_qosrt"))
+        .args([
+            "fleet",
+            "--json",
+            "--period-s",
+            "0.2",
+            "--duration-s",
+            "150",
+        ])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut snapshots = BufReader::new(view.stdout.take().unwrap())
+        .lines()
+        .map_while(Result::ok)
+        .map(|line| serde_json::from_str::<Value>(&line).unwrap());
+    // Both flying, with the margin of the governor's first re-plan (RustDDS announces itself
+    // every 10 s; the first re-plan follows the governor's warm-up).
+    let last = snapshots
+        .find(|snapshot| {
+            names
+                .iter()
+                .all(|name| ours(snapshot, name).is_some_and(|v| v["margin_wh"].is_number()))
+        })
+        .expect("both vehicles seen with a margin");
+    for name in &names {
+        let vehicle = ours(&last, name).unwrap();
+        assert!(vehicle["phase"].is_string(), "{vehicle}");
+        assert!(vehicle["link_age_s"].as_f64().unwrap() < 1.5, "{vehicle}");
+        assert_eq!(
+            vehicle["reserve_fraction"], 0.25,
+            "the config's reserve: {vehicle}"
+        );
+        assert!(vehicle["levels"]["detection"].is_number(), "{vehicle}");
+    }
+
+    let set = fleet(&["set", &names[0], "reserve=0.4", "--json"]);
+    let answered = std::time::Instant::now();
+    assert!(set.status.success(), "{}", output_text(&set));
+    let answer: Value = serde_json::from_slice(&set.stdout).unwrap();
+    assert_eq!(answer["accepted"], true, "{answer}");
+    assert_eq!(answer["reserve_fraction"], 0.4, "{answer}");
+    assert!(
+        answer["levels"]["tasks"]["hazard"]["level"].is_number(),
+        "{answer}"
+    );
+    // The open view shows the change within a second or so of the answer.
+    let changed = snapshots
+        .find(|snapshot| ours(snapshot, &names[0]).is_some_and(|v| v["reserve_fraction"] == 0.4))
+        .expect("the change seen");
+    eprintln!(
+        "the answer came {:.1} s after the view started, the change was in its snapshot of {:.1} s",
+        answered.duration_since(view_started).as_secs_f64(),
+        changed["time_s"].as_f64().unwrap()
+    );
+    let other = ours(&changed, &names[1]).expect("the other vehicle");
+    assert_eq!(other["reserve_fraction"], 0.25, "{other}");
+    let _ = view.kill();
+    let _ = view.wait();
+
+    let refused = fleet(&["set", &names[1], "reserve=1.5"]);
+    assert_eq!(refused.status.code(), Some(3), "{}", output_text(&refused));
+    assert!(
+        output_text(&refused).contains("[0, 1)"),
+        "{}",
+        output_text(&refused)
+    );
+    let nobody = fleet(&["set", "nobody_here", "reserve=0.3", "--timeout-s", "2"]);
+    assert_eq!(nobody.status.code(), Some(4), "{}", output_text(&nobody));
+    assert!(output_text(&nobody).contains("no answer from `nobody_here`"));
+    for mut vehicle in vehicles {
+        let _ = vehicle.kill();
+        let _ = vehicle.wait();
+    }
+}

@@ -18,6 +18,8 @@ pub enum ReplanTrigger {
     Periodic,
     /// The measured remaining energy fell `divergence_wh` below the prediction.
     DrainFaster { divergence_wh: f64 },
+    /// The reserve was changed in flight (a ground station's plan change).
+    ReserveChanged,
 }
 
 impl fmt::Display for ReplanTrigger {
@@ -26,6 +28,7 @@ impl fmt::Display for ReplanTrigger {
             ReplanTrigger::Start => f.write_str("start"),
             ReplanTrigger::PhaseStarted => f.write_str("phase started"),
             ReplanTrigger::Periodic => f.write_str("periodic"),
+            ReplanTrigger::ReserveChanged => f.write_str("the reserve was changed in flight"),
             ReplanTrigger::DrainFaster { divergence_wh } => {
                 write!(
                     f,

@@ -8,6 +8,8 @@ use crate::scheduler::TaskStats;
 use crate::telemetry::BatteryTelemetry;
 use crate::topics::VehicleState;
 use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 /// What the mission tells its observers. Each has a default that ignores it.
 pub trait MissionObserver: Send {
@@ -23,4 +25,59 @@ pub trait MissionObserver: Send {
     fn governor(&self, _decision: &GovernorDecision) {}
     /// Every task's level and statistics: when a level changes, and once a second.
     fn tasks(&self, _time_s: f64, _levels: &QosLevels, _stats: &[TaskStats]) {}
+    /// The mission at a glance, with the tasks' levels.
+    fn status(&self, _status: &VehicleStatus) {}
+    /// Plan changes asked for since the last call (taken: each is asked for once).
+    fn plan_requests(&self) -> Vec<PlanRequest> {
+        Vec::new()
+    }
+    /// The answer to a plan change.
+    fn plan_answer(&self, _answer: &PlanAnswer) {}
+}
+
+/// A change to the plan asked for in flight (`qosrt fleet set VEHICLE reserve=0.3`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanRequest {
+    /// The asker's number for it, given back in the answer.
+    pub id: u64,
+    /// The reserve to keep, a fraction of the full pack's usable energy (0 ≤ r < 1).
+    pub reserve_fraction: f64,
+}
+
+/// The mission's answer to a [`PlanRequest`]: the plan in force after it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanAnswer {
+    pub id: u64,
+    pub accepted: bool,
+    /// Why not, when refused (out of range, not a request).
+    pub refusal: Option<String>,
+    pub reserve_fraction: f64,
+    /// The energy left over the reserve at the end of the mission, by the re-plan.
+    pub margin_wh: Option<f64>,
+    /// The re-plan found no levels that finish the mission: the vehicle lands.
+    pub land_now: bool,
+    /// Every task's level now.
+    pub levels: QosLevels,
+}
+
+/// The mission at a glance, once a second: what a fleet's ground station shows of a vehicle.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VehicleStatus {
+    pub time_s: f64,
+    /// The phase flying (`None` before the first and after the last).
+    pub phase: Option<String>,
+    /// The autopilot's estimate of the charge left, 0..1.
+    pub battery_fraction: Option<f64>,
+    pub reserve_fraction: f64,
+    /// The last re-plan's energy left over the reserve at the mission's end, and the energy
+    /// above the reserve it found (`None` before the first re-plan).
+    pub margin_wh: Option<f64>,
+    pub available_wh: Option<f64>,
+    /// How long the energy above the reserve lasts at the power the levels in force draw.
+    pub flight_time_left_s: Option<f64>,
+    pub land_now: bool,
+    /// Every task's level index.
+    pub levels: BTreeMap<String, usize>,
+    pub last_event: Option<String>,
 }

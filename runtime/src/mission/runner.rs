@@ -8,7 +8,7 @@
 //! harness in lockstep with its world on a [`VirtualScheduler`](crate::scheduler::VirtualScheduler).
 
 use super::input_rates::InputRateMeter;
-use super::observer::MissionObserver;
+use super::observer::{MissionObserver, PlanAnswer, PlanRequest, VehicleStatus};
 use super::report::MissionLog;
 use super::sequencer::{
     AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, PhaseKind,
@@ -248,8 +248,10 @@ impl<S: TaskScheduler> MissionRunner<S> {
             }
         }
         let (named, stats) = (self.named_levels(&levels), self.scheduler.stats());
+        let status = self.vehicle_status(now_s);
         for observer in &self.observers {
             observer.tasks(now_s, &named, &stats);
+            observer.status(&status);
         }
         self.observed_tasks = Some((levels, now_s));
     }
@@ -398,6 +400,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             self.link.end_tick(t_ns)?;
         }
         self.record_step(now_s, lockstep);
+        self.take_plan_requests(now_s)?;
         self.observe_tasks(now_s);
         self.log
             .loop_step
@@ -530,35 +533,112 @@ impl<S: TaskScheduler> MissionRunner<S> {
             MissionProgress::new(p, now_s - status.phase_started_s)
         });
         match self.governor.update(&sample, progress) {
-            Ok(decisions) => {
-                for event in decisions {
-                    if let GovernorEvent::LandNow(_) = &event {
-                        self.land_now = Some("the battery cannot reach the end of the mission");
-                    }
-                    let description = event.describe(&self.model.config.tasks);
-                    tracing::info!(time_s = now_s, "governor: {description}");
-                    let decision = GovernorDecision::from_event(
-                        now_s,
-                        &event,
-                        &self.model.config.tasks,
-                        description,
-                    );
-                    if let Some(recorder) = &self.recorder {
-                        recorder.governor(decision.clone());
-                    }
-                    for observer in &self.observers {
-                        observer.governor(&decision);
-                    }
-                    self.log.governor(decision);
-                }
-                self.apply_levels()?;
-            }
+            Ok(decisions) => self.take_decisions(now_s, decisions)?,
             Err(error) => {
                 self.log.telemetry_refused += 1;
                 self.note(now_s, format!("telemetry refused: {error}"));
             }
         }
         Ok(())
+    }
+
+    /// The governor's decisions: logged, recorded, told, and the levels put in force.
+    fn take_decisions(
+        &mut self,
+        now_s: f64,
+        decisions: Vec<GovernorEvent>,
+    ) -> Result<(), RunnerError> {
+        for event in decisions {
+            if let GovernorEvent::LandNow(_) = &event {
+                self.land_now = Some("the battery cannot reach the end of the mission");
+            }
+            let description = event.describe(&self.model.config.tasks);
+            tracing::info!(time_s = now_s, "governor: {description}");
+            let decision =
+                GovernorDecision::from_event(now_s, &event, &self.model.config.tasks, description);
+            if let Some(recorder) = &self.recorder {
+                recorder.governor(decision.clone());
+            }
+            for observer in &self.observers {
+                observer.governor(&decision);
+            }
+            self.log.governor(decision);
+        }
+        self.apply_levels()
+    }
+
+    /// The plan changes the observers were asked for (a ground station's), each applied and
+    /// answered: the governor re-plans at once, or the change is refused by name.
+    fn take_plan_requests(&mut self, now_s: f64) -> Result<(), RunnerError> {
+        let requests: Vec<PlanRequest> = self
+            .observers
+            .iter()
+            .flat_map(|o| o.plan_requests())
+            .collect();
+        for request in requests {
+            let outcome = self.governor.change_reserve(request.reserve_fraction);
+            let refusal = match outcome {
+                Ok(decisions) => {
+                    self.note(
+                        now_s,
+                        format!(
+                            "reserve changed to {:.2} in flight",
+                            request.reserve_fraction
+                        ),
+                    );
+                    self.take_decisions(now_s, decisions)?;
+                    None
+                }
+                Err(error) => Some(error.to_string()),
+            };
+            let answer = PlanAnswer {
+                id: request.id,
+                accepted: refusal.is_none(),
+                refusal,
+                reserve_fraction: self.governor.reserve_fraction(),
+                margin_wh: self.governor.last_replan().map(|r| r.margin_wh),
+                land_now: self.governor.land_now_raised(),
+                levels: self.named_levels(&self.with_fixed(self.governor.current_levels())),
+            };
+            for observer in &self.observers {
+                observer.plan_answer(&answer);
+            }
+            // The status shows the change at once, not at its next second.
+            self.observed_tasks = None;
+        }
+        Ok(())
+    }
+
+    /// The mission at a glance, for the observers (a fleet's ground station).
+    fn vehicle_status(&self, now_s: f64) -> VehicleStatus {
+        let replan = self.governor.last_replan();
+        let power_w = self
+            .phase
+            .and_then(|phase| self.governor.model_power_w(phase))
+            .map(|w| w * self.governor.correction_ratio());
+        VehicleStatus {
+            time_s: now_s,
+            phase: self
+                .phase
+                .map(|index| self.model.config.mission.phases[index].name.clone()),
+            battery_fraction: self.log.battery.last.and_then(|b| b.remaining_fraction),
+            reserve_fraction: self.governor.reserve_fraction(),
+            margin_wh: replan.map(|r| r.margin_wh),
+            available_wh: replan.map(|r| r.available_wh),
+            // What is left above the reserve, at the power the levels in force draw.
+            flight_time_left_s: replan
+                .zip(power_w)
+                .filter(|(_, w)| *w > 0.0)
+                .map(|(r, w)| r.available_wh.max(0.0) / w * 3600.0),
+            land_now: self.governor.land_now_raised(),
+            levels: self
+                .named_levels(&self.with_fixed(self.governor.current_levels()))
+                .tasks
+                .into_iter()
+                .map(|(task, level)| (task, level.level))
+                .collect(),
+            last_event: self.log.events.last().map(|(_, event)| event.clone()),
+        }
     }
 
     /// The governor prices triggered tasks at the rates their inputs were measured at, once

@@ -382,12 +382,12 @@ impl Drop for Recorder {
 }
 
 /// Every task's level (index) and knob value, by task name.
-#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, serde::Deserialize)]
 pub struct QosLevels {
     pub tasks: BTreeMap<String, TaskLevelRecord>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct TaskLevelRecord {
     pub level: usize,
     pub value: f64,

@@ -11,6 +11,7 @@
 pub mod messages;
 
 use crate::governor::GovernorDecision;
+use crate::mission::{PlanAnswer, PlanRequest, VehicleStatus};
 use crate::record::recorder::QosLevels;
 use crate::scheduler::TaskStats;
 use crate::task::TaskHealth;
@@ -23,9 +24,11 @@ use messages::{
 use nalgebra::Vector3;
 use ros2_client::rustdds::policy::{Durability, History, Reliability};
 use ros2_client::rustdds::{Duration as DdsDuration, QosPolicies, QosPolicyBuilder};
-use ros2_client::{Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher};
+pub use ros2_client::{
+    Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, Subscription,
+};
 use serde::Serialize;
-use std::sync::mpsc;
+use std::sync::{mpsc, Arc, Mutex};
 use std::thread::JoinHandle;
 
 /// What can go wrong starting the node.
@@ -74,6 +77,8 @@ pub enum Update {
         levels: QosLevels,
         stats: Vec<TaskStats>,
     },
+    Status(VehicleStatus),
+    PlanAnswer(PlanAnswer),
 }
 
 /// The node, seen from the mission loop.
@@ -81,7 +86,23 @@ pub struct Ros2Node {
     updates: Option<mpsc::Sender<Update>>,
     thread: Option<JoinHandle<()>>,
     namespace: String,
+    /// Plan changes received, for the runner to take.
+    requests: Arc<Mutex<Vec<PlanRequest>>>,
 }
+
+/// The topic every vehicle's status goes to, so that a ground station finds the fleet on one.
+pub const FLEET_STATUS_TOPIC: (&str, &str) = ("/qosrt/fleet", "status");
+
+/// A vehicle's status on the fleet's topic: the mission at a glance, and whose.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct FleetStatus {
+    pub vehicle: String,
+    #[serde(flatten)]
+    pub status: VehicleStatus,
+}
+
+/// How long the node's thread waits for the loop before it looks for requests again.
+const POLL_PERIOD: std::time::Duration = std::time::Duration::from_millis(10);
 
 impl Ros2Node {
     /// Starts the node `/qosrt/<vehicle>/qosrt` and its publishers; `design_capacity_ah` goes
@@ -94,21 +115,33 @@ impl Ros2Node {
         let (updates, receiver) = mpsc::channel();
         let (started, started_rx) = mpsc::channel();
         let node_namespace = namespace.clone();
+        let requests = Arc::new(Mutex::new(Vec::new()));
+        let received = requests.clone();
+        let vehicle_name = vehicle.to_string();
         let thread = std::thread::Builder::new()
             .name("qosrt-ros2".into())
             .spawn(move || {
-                let publishers = match Publishers::new(&node_namespace, design_capacity_ah) {
-                    Ok(publishers) => {
-                        let _ = started.send(Ok(()));
-                        publishers
+                let mut publishers =
+                    match Publishers::new(&node_namespace, &vehicle_name, design_capacity_ah) {
+                        Ok(publishers) => {
+                            let _ = started.send(Ok(()));
+                            publishers
+                        }
+                        Err(error) => {
+                            let _ = started.send(Err(error));
+                            return;
+                        }
+                    };
+                loop {
+                    match receiver.recv_timeout(POLL_PERIOD) {
+                        Ok(update) => publishers.publish(update),
+                        Err(mpsc::RecvTimeoutError::Timeout) => {}
+                        Err(mpsc::RecvTimeoutError::Disconnected) => break,
                     }
-                    Err(error) => {
-                        let _ = started.send(Err(error));
-                        return;
+                    let taken = publishers.take_requests();
+                    if !taken.is_empty() {
+                        lock(&received).extend(taken);
                     }
-                };
-                for update in receiver {
-                    publishers.publish(update);
                 }
             })
             .map_err(Ros2Error::Thread)?;
@@ -119,6 +152,7 @@ impl Ros2Node {
             updates: Some(updates),
             thread: Some(thread),
             namespace,
+            requests,
         })
     }
 
@@ -134,6 +168,13 @@ impl Ros2Node {
             let _ = updates.send(update);
         }
     }
+}
+
+fn lock<T>(mutex: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    // A list of requests is whole whatever panicked while it was held.
+    mutex
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// The node hears the mission as its other observers do, and publishes it.
@@ -169,6 +210,15 @@ impl crate::mission::MissionObserver for Ros2Node {
             stats: stats.to_vec(),
         });
     }
+    fn status(&self, status: &VehicleStatus) {
+        self.send(Update::Status(status.clone()));
+    }
+    fn plan_requests(&self) -> Vec<PlanRequest> {
+        std::mem::take(&mut *lock(&self.requests))
+    }
+    fn plan_answer(&self, answer: &PlanAnswer) {
+        self.send(Update::PlanAnswer(answer.clone()));
+    }
 }
 
 impl Drop for Ros2Node {
@@ -180,8 +230,21 @@ impl Drop for Ros2Node {
     }
 }
 
+/// A ROS 2 context and a node `namespace/name` in it (a ground station's, a test's).
+pub fn open_node(namespace: &str, name: &str) -> Result<(Context, Node), Ros2Error> {
+    let start = |e: String| Ros2Error::Start(e);
+    let context = Context::new().map_err(|e| start(format!("{e:?}")))?;
+    let node = context
+        .new_node(
+            NodeName::new(namespace, name).map_err(|e| start(format!("{e:?}")))?,
+            NodeOptions::new(),
+        )
+        .map_err(|e| start(format!("{e:?}")))?;
+    Ok((context, node))
+}
+
 /// `rclcpp::SensorDataQoS`: best effort, volatile, the last five.
-fn sensor_data_qos() -> QosPolicies {
+pub fn sensor_data_qos() -> QosPolicies {
     QosPolicyBuilder::new()
         .reliability(Reliability::BestEffort)
         .durability(Durability::Volatile)
@@ -190,7 +253,7 @@ fn sensor_data_qos() -> QosPolicies {
 }
 
 /// State: reliable, the last `depth` kept for subscribers that join later.
-fn state_qos(depth: i32) -> QosPolicies {
+pub fn state_qos(depth: i32) -> QosPolicies {
     QosPolicyBuilder::new()
         .reliability(Reliability::Reliable {
             max_blocking_time: DdsDuration::from_millis(100),
@@ -212,18 +275,19 @@ struct Publishers {
     phase: Publisher<StringMessage>,
     governor: Publisher<StringMessage>,
     diagnostics: Publisher<DiagnosticArray>,
+    vehicle: String,
+    fleet_status: Publisher<StringMessage>,
+    plan_requests: Subscription<StringMessage>,
+    plan_answers: Publisher<StringMessage>,
+    /// Each request id taken, and its answer once given: an asker repeats a request until it
+    /// hears the answer (DDS drops what is sent before the two sides have met), and a repeat
+    /// is answered again, not applied again.
+    answers: std::collections::BTreeMap<u64, Option<String>>,
 }
 
 impl Publishers {
-    fn new(namespace: &str, design_capacity_ah: f64) -> Result<Self, Ros2Error> {
-        let start = |e: &dyn std::fmt::Display| Ros2Error::Start(e.to_string());
-        let context = Context::new().map_err(|e| start(&format!("{e:?}")))?;
-        let mut node = context
-            .new_node(
-                NodeName::new(namespace, "qosrt").map_err(|e| start(&format!("{e:?}")))?,
-                NodeOptions::new(),
-            )
-            .map_err(|e| start(&format!("{e:?}")))?;
+    fn new(namespace: &str, vehicle: &str, design_capacity_ah: f64) -> Result<Self, Ros2Error> {
+        let (context, mut node) = open_node(namespace, "qosrt")?;
         Ok(Self {
             pose: publisher(
                 &mut node,
@@ -267,13 +331,73 @@ impl Publishers {
                 ("diagnostic_msgs", "DiagnosticArray"),
                 state_qos(1),
             )?,
+            fleet_status: publisher(
+                &mut node,
+                FLEET_STATUS_TOPIC.0,
+                FLEET_STATUS_TOPIC.1,
+                ("std_msgs", "String"),
+                state_qos(1),
+            )?,
+            plan_requests: subscription(
+                &mut node,
+                namespace,
+                "plan_request",
+                ("std_msgs", "String"),
+                request_qos(),
+            )?,
+            plan_answers: publisher(
+                &mut node,
+                namespace,
+                "plan_answer",
+                ("std_msgs", "String"),
+                request_qos(),
+            )?,
+            vehicle: vehicle.into(),
+            answers: Default::default(),
             _node: node,
             _context: context,
             design_capacity_ah,
         })
     }
 
-    fn publish(&self, update: Update) {
+    /// The plan changes received since the last look; one that is not a request is answered
+    /// with why (its id 0), and the mission goes on.
+    fn take_requests(&mut self) -> Vec<PlanRequest> {
+        let mut requests = Vec::new();
+        while let Ok(Some((message, _))) = self.plan_requests.take() {
+            match serde_json::from_str::<PlanRequest>(&message.data) {
+                Ok(request) => match self.answers.get(&request.id) {
+                    None => {
+                        self.answers.insert(request.id, None);
+                        requests.push(request);
+                    }
+                    Some(Some(answer)) => {
+                        let _ = self.plan_answers.publish(StringMessage {
+                            data: answer.clone(),
+                        });
+                    }
+                    // Taken, not yet answered: the answer is on its way.
+                    Some(None) => {}
+                },
+                Err(error) => {
+                    tracing::warn!(%error, "a plan request that is not one was refused");
+                    let refusal = PlanRefusal {
+                        id: 0,
+                        accepted: false,
+                        refusal: format!(
+                            "not a plan request ({error}): expected {{\"id\": N, \"reserve_fraction\": F}}"
+                        ),
+                    };
+                    let _ = self.plan_answers.publish(StringMessage {
+                        data: json(&refusal),
+                    });
+                }
+            }
+        }
+        requests
+    }
+
+    fn publish(&mut self, update: Update) {
         let result = match update {
             Update::Vehicle { time_s, state } => match messages::vehicle_pose(time_s, &state) {
                 Some(pose) => self.pose.publish(pose).map_err(|e| format!("{e:?}")),
@@ -322,6 +446,22 @@ impl Publishers {
                 .diagnostics
                 .publish(task_diagnostics(time_s, &levels, &stats))
                 .map_err(|e| format!("{e:?}")),
+            Update::Status(status) => self
+                .fleet_status
+                .publish(StringMessage {
+                    data: json(&FleetStatus {
+                        vehicle: self.vehicle.clone(),
+                        status,
+                    }),
+                })
+                .map_err(|e| format!("{e:?}")),
+            Update::PlanAnswer(answer) => {
+                let data = json(&answer);
+                self.answers.insert(answer.id, Some(data.clone()));
+                self.plan_answers
+                    .publish(StringMessage { data })
+                    .map_err(|e| format!("{e:?}"))
+            }
         };
         if let Err(error) = result {
             tracing::debug!(%error, "a ROS 2 message was not published");
@@ -329,20 +469,88 @@ impl Publishers {
     }
 }
 
-fn publisher<M: Serialize>(
+/// A request and its answer: reliable, not kept for later subscribers (a late answer would
+/// answer nobody).
+pub fn request_qos() -> QosPolicies {
+    QosPolicyBuilder::new()
+        .reliability(Reliability::Reliable {
+            max_blocking_time: DdsDuration::from_millis(100),
+        })
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 10 })
+        .build()
+}
+
+/// A refusal of something that was not a plan request at all.
+#[derive(Serialize)]
+struct PlanRefusal {
+    id: u64,
+    accepted: bool,
+    refusal: String,
+}
+
+/// Where a topic is and what it carries: its namespace, name, and `package/type_name`.
+pub struct TopicSpec<'a> {
+    pub namespace: &'a str,
+    pub name: &'a str,
+    pub type_name: (&'a str, &'a str),
+}
+
+/// Makes the topic and, with it, a reader or a writer (`make`); an error names the topic.
+fn with_topic<T>(
     node: &mut Node,
-    namespace: &str,
-    topic: &str,
-    (package, type_name): (&str, &str),
+    spec: &TopicSpec,
     qos: QosPolicies,
-) -> Result<Publisher<M>, Ros2Error> {
-    let start = |e: String| Ros2Error::Start(format!("topic {namespace}/{topic}: {e}"));
-    let name = Name::new(namespace, topic).map_err(|e| start(format!("{e:?}")))?;
+    make: impl FnOnce(
+        &mut Node,
+        &ros2_client::rustdds::Topic,
+        QosPolicies,
+    ) -> Result<T, ros2_client::rustdds::dds::CreateError>,
+) -> Result<T, Ros2Error> {
+    let start =
+        |e: String| Ros2Error::Start(format!("topic {}/{}: {e}", spec.namespace, spec.name));
+    let name = Name::new(spec.namespace, spec.name).map_err(|e| start(format!("{e:?}")))?;
+    let (package, type_name) = spec.type_name;
     let topic = node
         .create_topic(&name, MessageTypeName::new(package, type_name), &qos)
         .map_err(|e| start(format!("{e:?}")))?;
-    node.create_publisher(&topic, Some(qos))
-        .map_err(|e| start(format!("{e:?}")))
+    make(node, &topic, qos).map_err(|e| start(format!("{e:?}")))
+}
+
+/// A subscription to `namespace/topic` of `package/type_name`.
+pub fn subscription<M: serde::de::DeserializeOwned + 'static>(
+    node: &mut Node,
+    namespace: &str,
+    topic: &str,
+    type_name: (&str, &str),
+    qos: QosPolicies,
+) -> Result<Subscription<M>, Ros2Error> {
+    let spec = TopicSpec {
+        namespace,
+        name: topic,
+        type_name,
+    };
+    with_topic(node, &spec, qos, |node, topic, qos| {
+        node.create_subscription(topic, Some(qos))
+    })
+}
+
+/// A publisher on `namespace/topic` of `package/type_name`.
+pub fn publisher<M: Serialize>(
+    node: &mut Node,
+    namespace: &str,
+    topic: &str,
+    type_name: (&str, &str),
+    qos: QosPolicies,
+) -> Result<Publisher<M>, Ros2Error> {
+    let spec = TopicSpec {
+        namespace,
+        name: topic,
+        type_name,
+    };
+    with_topic(node, &spec, qos, |node, topic, qos| {
+        node.create_publisher(topic, Some(qos))
+    })
 }
 
 /// The phase as its topic carries it.

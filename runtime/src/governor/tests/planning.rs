@@ -180,3 +180,52 @@ fn bad_configuration_is_named() {
         GovernorError::Plan(PlanError::BadUtility { .. })
     ));
 }
+
+/// A reserve changed in flight re-plans at once from the last reading: a larger one leaves less
+/// to fly with, so the levels come down (or the vehicle is told to land); one outside 0..1 is
+/// refused and changes nothing.
+#[test]
+fn a_reserve_changed_in_flight_replans_at_once() {
+    let mut governor = survey_governor(60.0, EstimatorConfig::default(), GovernorConfig::default());
+    // Before any reading there is nothing to re-plan from: the reserve waits for the first.
+    assert!(governor.change_reserve(0.3).unwrap().is_empty());
+    assert!((governor.reserve_fraction() - 0.3).abs() < 1e-12);
+    governor.change_reserve(0.25).unwrap();
+    for second in 0..=40 {
+        let telemetry = BatteryTelemetry {
+            time_s: f64::from(second),
+            voltage_v: Some(16.4),
+            current_a: Some(8.0),
+            consumed_mah: None,
+            remaining_fraction: None,
+        };
+        governor
+            .update(&telemetry, MissionProgress::new(1, f64::from(second)))
+            .unwrap();
+    }
+    let before = governor
+        .last_replan()
+        .expect("a re-plan after the warm-up")
+        .clone();
+    let events = governor.change_reserve(0.8).unwrap();
+    let after = governor.last_replan().unwrap();
+    assert_eq!(after.trigger, ReplanTrigger::ReserveChanged);
+    assert!(
+        after.available_wh < before.available_wh - 0.5 * governor.usable_full_wh() * 0.5,
+        "{} Wh available before, {} after",
+        before.available_wh,
+        after.available_wh
+    );
+    assert!(
+        events.iter().any(|e| matches!(
+            e,
+            GovernorEvent::LevelsChanged(_) | GovernorEvent::LandNow(_)
+        )),
+        "{events:?}"
+    );
+    assert!(matches!(
+        governor.change_reserve(1.2),
+        Err(GovernorError::BadReserve { .. })
+    ));
+    assert!((governor.reserve_fraction() - 0.8).abs() < 1e-12);
+}

@@ -1,0 +1,330 @@
+//! `qosrt fleet`: the ground station's view of every vehicle flying with `--ros2`, found on
+//! the fleet's status topic (no list of vehicles to keep), and `qosrt fleet set` to change a
+//! vehicle's plan in flight.
+
+use runtime::mission::{PlanAnswer, PlanRequest};
+use runtime::ros2::messages::StringMessage;
+use runtime::ros2::{
+    open_node, publisher, request_qos, state_qos, subscription, FleetStatus, Ros2Error,
+    FLEET_STATUS_TOPIC,
+};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::io::IsTerminal;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+/// Exit status when the vehicle refused the change.
+const EXIT_REFUSED: u8 = 3;
+/// Exit status when no answer came (an unknown vehicle, no network).
+const EXIT_NO_ANSWER: u8 = 4;
+
+/// `qosrt fleet`'s arguments.
+#[derive(clap::Args)]
+pub struct FleetArgs {
+    #[command(subcommand)]
+    pub action: Option<FleetAction>,
+    /// Print one JSON snapshot of the fleet per period, one per line, for scripts.
+    #[arg(long)]
+    pub json: bool,
+    /// Seconds between snapshots.
+    #[arg(long, value_name = "S", default_value_t = 1.0)]
+    pub period_s: f64,
+    /// Stop after this many seconds (default: until interrupted).
+    #[arg(long, value_name = "S")]
+    pub duration_s: Option<f64>,
+}
+
+#[derive(clap::Subcommand)]
+pub enum FleetAction {
+    /// Change a vehicle's plan in flight: `qosrt fleet set drone_1 reserve=0.3` (the reserve,
+    /// a fraction of the full pack's usable energy). The vehicle re-plans at once and answers
+    /// with its levels and margin, or says why not.
+    Set {
+        vehicle: String,
+        #[arg(value_name = "KEY=VALUE", value_parser = parse_change)]
+        change: PlanChange,
+        /// How long to wait for the answer (finding the vehicle on the network takes up to
+        /// RustDDS's 10 s announcement period).
+        #[arg(long, value_name = "S", default_value_t = 25.0)]
+        timeout_s: f64,
+        /// Print the answer as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// A change `qosrt fleet set` can ask for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PlanChange {
+    Reserve(f64),
+}
+
+fn parse_change(text: &str) -> Result<PlanChange, String> {
+    let (key, value) = text
+        .split_once('=')
+        .ok_or_else(|| format!("expected KEY=VALUE (e.g. reserve=0.3), found `{text}`"))?;
+    let value: f64 = value
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{value}` is not a number; expected {key}=VALUE"))?;
+    match key.trim() {
+        "reserve" => Ok(PlanChange::Reserve(value)),
+        other => Err(format!(
+            "`{other}` is not a change a vehicle takes in flight; expected reserve=FRACTION"
+        )),
+    }
+}
+
+pub fn run(args: &FleetArgs) -> ExitCode {
+    let result = match &args.action {
+        None => view(args),
+        Some(FleetAction::Set {
+            vehicle,
+            change,
+            timeout_s,
+            json,
+        }) => return set(vehicle, *change, *timeout_s, *json),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("error: {error}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// One vehicle as the fleet sees it.
+#[derive(Serialize)]
+struct Seen<'a> {
+    /// Seconds since its last status.
+    link_age_s: f64,
+    #[serde(flatten)]
+    status: &'a FleetStatus,
+}
+
+/// The fleet's view, refreshed every period.
+fn view(args: &FleetArgs) -> Result<(), Ros2Error> {
+    let (_context, mut node) = open_node("/qosrt", "fleet")?;
+    let statuses = subscription::<StringMessage>(
+        &mut node,
+        FLEET_STATUS_TOPIC.0,
+        FLEET_STATUS_TOPIC.1,
+        ("std_msgs", "String"),
+        state_qos(100),
+    )?;
+    let started = Instant::now();
+    let mut fleet: BTreeMap<String, (FleetStatus, Instant)> = BTreeMap::new();
+    let mut next = started + Duration::from_secs_f64(args.period_s);
+    let terminal = !args.json && std::io::stdout().is_terminal();
+    loop {
+        while let Ok(Some((message, _))) = statuses.take() {
+            match serde_json::from_str::<FleetStatus>(&message.data) {
+                // A reader that joins late is handed a vehicle's kept statuses oldest first:
+                // only a newer one replaces what is shown.
+                Ok(status) => match fleet.get(&status.vehicle) {
+                    Some((shown, _)) if shown.status.time_s > status.status.time_s => {}
+                    _ => {
+                        fleet.insert(status.vehicle.clone(), (status, Instant::now()));
+                    }
+                },
+                Err(error) => tracing::warn!(%error, "a fleet status that is not one was ignored"),
+            }
+        }
+        let now = Instant::now();
+        if now >= next {
+            next += Duration::from_secs_f64(args.period_s);
+            let seen: Vec<Seen> = fleet
+                .values()
+                .map(|(status, at)| Seen {
+                    link_age_s: now.duration_since(*at).as_secs_f64(),
+                    status,
+                })
+                .collect();
+            if args.json {
+                let snapshot = serde_json::json!({
+                    "time_s": now.duration_since(started).as_secs_f64(),
+                    "vehicles": seen,
+                });
+                println!("{snapshot}");
+            } else {
+                print_table(&seen, terminal);
+            }
+        }
+        if args
+            .duration_s
+            .is_some_and(|limit| now.duration_since(started).as_secs_f64() >= limit)
+        {
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The fleet as a table; a vehicle whose margin is negative (or that was told to land) is
+/// marked with `!`.
+fn print_table(seen: &[Seen], terminal: bool) {
+    if terminal {
+        // Clear the screen and go home: the table stays in place as it refreshes.
+        print!("\x1b[2J\x1b[H");
+    }
+    println!(
+        "{:<2}{:<14} {:<10} {:>8} {:>10} {:>10} {:>8} {:>7}  {:<28} last event",
+        "", "vehicle", "phase", "battery", "margin", "time left", "reserve", "link", "levels",
+    );
+    for vehicle in seen {
+        let status = &vehicle.status.status;
+        let warning = status.land_now || status.margin_wh.is_some_and(|m| m < 0.0);
+        let or_dash = |value: Option<String>| value.unwrap_or_else(|| "—".into());
+        let levels: Vec<String> = status
+            .levels
+            .iter()
+            .map(|(task, level)| format!("{task}={level}"))
+            .collect();
+        println!(
+            "{:<2}{:<14} {:<10} {:>8} {:>10} {:>10} {:>8} {:>6.1}s  {:<28} {}",
+            if warning { "!" } else { "" },
+            vehicle.status.vehicle,
+            status.phase.as_deref().unwrap_or("—"),
+            or_dash(
+                status
+                    .battery_fraction
+                    .map(|f| format!("{:.0} %", f * 100.0))
+            ),
+            or_dash(status.margin_wh.map(|m| format!("{m:+.1} Wh"))),
+            or_dash(status.flight_time_left_s.map(|s| format!("{:.0} s", s))),
+            format!("{:.2}", status.reserve_fraction),
+            vehicle.link_age_s,
+            levels.join(" "),
+            status.last_event.as_deref().unwrap_or(""),
+        );
+    }
+    if seen.is_empty() {
+        println!(
+            "no vehicle heard yet on {}/{}",
+            FLEET_STATUS_TOPIC.0, FLEET_STATUS_TOPIC.1
+        );
+    }
+}
+
+/// Asks `vehicle` for `change` until it answers (a request sent before the two sides have met
+/// is lost, so it is repeated; the vehicle answers a repeat without applying it again).
+fn set(vehicle: &str, change: PlanChange, timeout_s: f64, json: bool) -> ExitCode {
+    match ask(vehicle, change, timeout_s) {
+        Ok(Some((answer, waited))) => {
+            if json {
+                println!("{}", serde_json::to_string(&answer).unwrap_or_default());
+            } else if answer.accepted {
+                let levels: Vec<String> = answer
+                    .levels
+                    .tasks
+                    .iter()
+                    .map(|(task, level)| format!("{task}={}", level.level))
+                    .collect();
+                println!(
+                    "{vehicle}: reserve {:.2}, margin {}, levels {}{} (answered {:.0} ms after the first ask)",
+                    answer.reserve_fraction,
+                    answer
+                        .margin_wh
+                        .map_or("—".into(), |m| format!("{m:+.2} Wh")),
+                    levels.join(" "),
+                    if answer.land_now { "; landing: the battery cannot finish the mission" } else { "" },
+                    waited.as_secs_f64() * 1e3
+                );
+            } else {
+                eprintln!(
+                    "error: {vehicle} refused: {}",
+                    answer.refusal.as_deref().unwrap_or("no reason given")
+                );
+            }
+            if answer.accepted {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(EXIT_REFUSED)
+            }
+        }
+        Ok(None) => {
+            eprintln!(
+                "error: no answer from `{vehicle}` within {timeout_s} s: no vehicle of that name \
+                 flies with --ros2 on this network (qosrt fleet lists those that do)"
+            );
+            ExitCode::from(EXIT_NO_ANSWER)
+        }
+        Err(error) => {
+            eprintln!("error: {error}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn ask(
+    vehicle: &str,
+    change: PlanChange,
+    timeout_s: f64,
+) -> Result<Option<(PlanAnswer, Duration)>, Ros2Error> {
+    let PlanChange::Reserve(reserve_fraction) = change;
+    let namespace = format!("/qosrt/{vehicle}");
+    let (_context, mut node) = open_node("/qosrt", "fleet_set")?;
+    let requests = publisher::<StringMessage>(
+        &mut node,
+        &namespace,
+        "plan_request",
+        ("std_msgs", "String"),
+        request_qos(),
+    )?;
+    let answers = subscription::<StringMessage>(
+        &mut node,
+        &namespace,
+        "plan_answer",
+        ("std_msgs", "String"),
+        request_qos(),
+    )?;
+    // Unique enough among the asks a ground station makes: when, and by which process.
+    let id = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(1, |d| d.as_nanos() as u64 ^ u64::from(std::process::id()));
+    let request = StringMessage {
+        data: serde_json::to_string(&PlanRequest {
+            id,
+            reserve_fraction,
+        })
+        .unwrap_or_default(),
+    };
+    let started = Instant::now();
+    let mut last_send = started - Duration::from_secs(1);
+    while started.elapsed().as_secs_f64() < timeout_s {
+        if last_send.elapsed() >= Duration::from_millis(100) {
+            let _ = requests.publish(request.clone());
+            last_send = Instant::now();
+        }
+        while let Ok(Some((message, _))) = answers.take() {
+            let Ok(answer) = serde_json::from_str::<PlanAnswer>(&message.data) else {
+                continue;
+            };
+            if answer.id == id {
+                // From the first ask: the two sides finding each other included.
+                return Ok(Some((answer, started.elapsed())));
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    Ok(None)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_change_is_a_known_key_and_a_number() {
+        assert_eq!(parse_change("reserve=0.3"), Ok(PlanChange::Reserve(0.3)));
+        assert!(parse_change("reserve").unwrap_err().contains("KEY=VALUE"));
+        assert!(parse_change("reserve=lots")
+            .unwrap_err()
+            .contains("not a number"));
+        assert!(parse_change("speed=3")
+            .unwrap_err()
+            .contains("reserve=FRACTION"));
+    }
+}
