@@ -355,3 +355,78 @@ fn the_fleet_sees_every_vehicle_and_changes_one_plan_in_flight() {
         let _ = vehicle.wait();
     }
 }
+
+/// `--camera ros2:/TOPIC` fed by an independent publisher (Cyclone DDS, as a camera driver):
+/// every frame arrives pixel for pixel (mono8, and rgb8 as its luma), stamped with its header's
+/// capture time; a frame in an encoding qosrt does not read, or of another size, is a named
+/// error counted as malformed, and the frames after it still come.
+#[test]
+fn a_ros2_image_topic_is_a_camera() {
+    let Some(python) = cyclonedds_python() else {
+        return;
+    };
+    let topic = format!("/test_{}/image_raw", std::process::id());
+    let mut camera = runtime::camera::open(&format!("ros2:{topic}"), Some((64, 48))).unwrap();
+    let mut publisher = Command::new(&python)
+        .arg(repo_root().join("tests/ros2/publish_frames.py"))
+        .args([topic.as_str(), "40"])
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    let (mut frames, mut errors) = (Vec::new(), Vec::new());
+    while start.elapsed() < std::time::Duration::from_secs(40) && frames.len() < 150 {
+        let now_s = start.elapsed().as_secs_f64();
+        match camera.next_frame(now_s) {
+            Ok(Some(frame)) => frames.push(frame),
+            Ok(None) => std::thread::sleep(std::time::Duration::from_micros(200)),
+            Err(error) => errors.push(error.to_string()),
+        }
+    }
+    let _ = publisher.kill();
+    let _ = publisher.wait();
+    assert!(
+        frames.len() >= 150,
+        "{} frames, errors {errors:?}",
+        frames.len()
+    );
+    let mut colour = 0;
+    for frame in &frames {
+        let pixels = frame.frame.image.data();
+        let n = usize::from(pixels[0]) + 256 * usize::from(pixels[1]);
+        assert!(
+            n % 10 != 0 && n % 10 != 5,
+            "frame {n} should have been refused"
+        );
+        colour += usize::from(n % 10 == 3);
+        for (i, &pixel) in pixels.iter().enumerate().skip(2) {
+            let (x, y) = (i % 64, i / 64);
+            assert_eq!(
+                usize::from(pixel),
+                (x * 3 + y * 5) % 256,
+                "frame {n} pixel {x},{y}"
+            );
+        }
+    }
+    assert!(colour > 10, "{colour} rgb8 frames");
+    assert!(errors.iter().any(|e| e.contains("yuv422")), "{errors:?}");
+    assert!(errors.iter().any(|e| e.contains("(80, 48)")), "{errors:?}");
+    let stats = camera.stats();
+    assert_eq!(stats.malformed as usize, errors.len());
+    assert_eq!(
+        stats.sender_stamped, stats.delivered,
+        "every frame stamped by its header"
+    );
+    // From the driver's stamp (just before it published) to the frame on qosrt's queue.
+    let mut delays_ms: Vec<f64> = frames
+        .iter()
+        .map(|f| (f.arrived_s - f.capture_time_s) * 1e3)
+        .collect();
+    delays_ms.sort_by(f64::total_cmp);
+    let p99 = delays_ms[delays_ms.len() * 99 / 100];
+    eprintln!(
+        "stamp to queue: p50 {:.2} ms, p99 {p99:.2} ms over {} frames",
+        delays_ms[delays_ms.len() / 2],
+        delays_ms.len()
+    );
+    assert!(delays_ms[0] >= 0.0 && p99 <= 5.0, "{delays_ms:?}");
+}

@@ -19,6 +19,8 @@
 pub mod folder;
 #[cfg(feature = "gstreamer")]
 pub mod gstreamer;
+#[cfg(feature = "ros2")]
+pub mod ros2;
 mod spec;
 
 pub use folder::{load_gray, ImageFolderConfig, ImageFolderSource};

@@ -8,6 +8,7 @@
 //! | `rtp-h264:PORT` | RTP/H.264 on UDP, as Gazebo's camera plugin and `qosrt sim --serve` send |
 //! | `rtsp://…` | an IP camera |
 //! | `file:PATH` | a video file, played at its own rate |
+//! | `ros2:/TOPIC` | a ROS 2 image topic (`sensor_msgs/Image`; `…/compressed`: `CompressedImage`) |
 //!
 //! The GStreamer forms are parsed in every build, so a wrong string is named the same way with
 //! or without the `gstreamer` feature; only opening one needs it.
@@ -25,6 +26,10 @@ pub enum CameraSpec {
     Folder {
         path: PathBuf,
         rate_fps: f64,
+    },
+    /// A ROS 2 image topic.
+    Ros2 {
+        topic: String,
     },
     Gstreamer {
         /// The pipeline up to raw video; the source appends the conversion to grey and its sink.
@@ -52,6 +57,28 @@ impl CameraSpec {
             pipeline,
             sync: false,
         };
+        if let Some(topic) = spec.strip_prefix("ros2:") {
+            let topic = topic.trim();
+            let segments_valid = topic.strip_prefix('/').is_some_and(|rest| {
+                rest.split('/').all(|segment| {
+                    segment
+                        .chars()
+                        .next()
+                        .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+                        && segment
+                            .chars()
+                            .all(|c| c.is_ascii_alphanumeric() || c == '_')
+                })
+            });
+            if !segments_valid {
+                return Err(invalid(format!(
+                    "expected a ROS 2 topic such as ros2:/camera/image_raw, found {topic:?}"
+                )));
+            }
+            return Ok(CameraSpec::Ros2 {
+                topic: topic.to_string(),
+            });
+        }
         if let Some(pipeline) = spec.strip_prefix("gst:") {
             not_empty("a GStreamer pipeline", pipeline)?;
             return Ok(live(pipeline.trim().to_string()));
@@ -108,7 +135,7 @@ impl CameraSpec {
             None => {
                 return Err(invalid(
                     "expected folder:PATH[@FPS], gst:PIPELINE, v4l2:DEVICE, rtp-h264:PORT, \
-                     rtsp://URL or file:PATH"
+                     rtsp://URL, file:PATH or ros2:/TOPIC"
                         .into(),
                 ))
             }
@@ -166,6 +193,16 @@ pub fn open(
                 ..ImageFolderConfig::new(path, rate_fps)
             })?))
         }
+        #[cfg(feature = "ros2")]
+        CameraSpec::Ros2 { topic } => Ok(Box::new(super::ros2::Ros2Camera::open(
+            &topic,
+            expected_size_px,
+        )?)),
+        #[cfg(not(feature = "ros2"))]
+        CameraSpec::Ros2 { .. } => Err(CameraSourceError::Spec {
+            spec: spec.to_string(),
+            reason: "this qosrt was built without the `ros2` feature".into(),
+        }),
         #[cfg(feature = "gstreamer")]
         CameraSpec::Gstreamer { pipeline, sync } => {
             let config = super::gstreamer::GstreamerConfig {

@@ -179,6 +179,27 @@ pub struct DiagnosticArray {
     pub status: Vec<DiagnosticStatus>,
 }
 
+/// `sensor_msgs/Image`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Image {
+    pub header: Header,
+    pub height: u32,
+    pub width: u32,
+    pub encoding: String,
+    pub is_bigendian: u8,
+    pub step: u32,
+    pub data: Vec<u8>,
+}
+
+/// `sensor_msgs/CompressedImage` (`format` as image_transport writes it: `jpeg`, `png`, or
+/// `rgb8; jpeg compressed bgr8`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CompressedImage {
+    pub header: Header,
+    pub format: String,
+    pub data: Vec<u8>,
+}
+
 /// North-east-down to east-north-up.
 pub fn enu(ned: &Vector3<f64>) -> Point {
     Point {
