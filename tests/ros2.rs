@@ -231,6 +231,85 @@ fn an_independent_ros2_client_receives_what_the_mission_recorded() {
         );
     }
 
+    // The pad where the tracker put it: the vehicle's position less the estimate of the vehicle
+    // relative to the pad (the vehicle's as the node last heard it: within a step's travel).
+    let relatives = recorded(&recording, "/bus/tracking/relative_state");
+    let pads = &received["pad_pose"];
+    assert!(pads.len() >= 20, "{} pad poses", pads.len());
+    for pad in pads {
+        let t = pad["t"].as_f64().unwrap();
+        let (_, relative) = relatives
+            .iter()
+            .find(|(_, r)| close(r["estimate"]["time_s"].as_f64().unwrap(), t, 1e-6))
+            .unwrap_or_else(|| panic!("no recorded estimate at {t}"));
+        let (_, state) = states
+            .iter()
+            .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))
+            .unwrap();
+        let ned: Vec<f64> = serde_json::from_value(state["position_ned_m"].clone()).unwrap();
+        let rel: Vec<f64> =
+            serde_json::from_value(relative["estimate"]["uav_relative_ned_m"].clone()).unwrap();
+        let expected = [ned[1] - rel[1], ned[0] - rel[0], -(ned[2] - rel[2])];
+        let position: Vec<f64> = serde_json::from_value(pad["position"].clone()).unwrap();
+        let off = (0..3)
+            .map(|i| (position[i] - expected[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(off < 0.5, "{pad}: {off} m from {expected:?}");
+    }
+
+    // The hazards, each report as the CNN made it: class, score and box per detection.
+    let reports = recorded(&recording, "/bus/vision/hazards");
+    let hazards = &received["hazards"];
+    assert!(!hazards.is_empty(), "no hazard reports");
+    for message in hazards {
+        let t = message["t"].as_f64().unwrap();
+        let (_, report) = reports
+            .iter()
+            .find(|(_, r)| close(r["capture_time_s"].as_f64().unwrap(), t, 1e-6))
+            .unwrap_or_else(|| panic!("no recorded hazard report captured at {t}"));
+        let detections = message["detections"].as_array().unwrap();
+        let recorded_detections = report["detections"].as_array().unwrap();
+        assert_eq!(detections.len(), recorded_detections.len(), "{message}");
+        for (got, want) in detections.iter().zip(recorded_detections) {
+            assert_eq!(got["class"], want["class_name"]);
+            assert_eq!(got["score"], want["confidence"]);
+            let b = &want["bbox"];
+            let centre_x = (b["x_min"].as_f64().unwrap() + b["x_max"].as_f64().unwrap()) / 2.0;
+            assert!(
+                close(got["box"][0].as_f64().unwrap(), centre_x, 1e-9),
+                "{got} {want}"
+            );
+            assert_eq!(got["covariance0"], -1.0, "the covariance marked unknown");
+        }
+    }
+
+    // The plan for the rest of the mission and its forecast, after a re-plan.
+    let plan: Value = serde_json::from_str(
+        received["plan"].last().expect("a plan")["data"]
+            .as_str()
+            .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(plan["reserve_fraction"], 0.25, "{plan}");
+    for key in ["remaining_energy_wh", "needed_wh", "margin_wh", "sigma_wh"] {
+        assert!(plan[key].is_number(), "{key}: {plan}");
+    }
+    let planned = plan["phases"].as_array().unwrap();
+    assert!(!planned.is_empty(), "{plan}");
+    for phase in planned {
+        let name = phase["name"].as_str().unwrap();
+        assert!(
+            ["transit", "tracking", "landing"].contains(&name),
+            "{phase}"
+        );
+        let levels = phase["levels"].as_object().unwrap();
+        assert!(
+            !levels.is_empty() && levels.values().all(Value::is_number),
+            "{phase}"
+        );
+    }
+
     // The governor's decisions, each as recorded.
     let decisions: Vec<Value> = recorded(&recording, "/qosrt/governor")
         .into_iter()

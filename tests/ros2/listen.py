@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import float32, float64, int32, sequence, uint8, uint32
+from cyclonedds.idl.types import array, float32, float64, int32, sequence, uint8, uint32
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
@@ -124,6 +124,57 @@ class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::Diagnosti
     status: sequence[DiagnosticStatus]
 
 
+@dataclass
+class Point2D(IdlStruct, typename="vision_msgs::msg::dds_::Point2D_"):
+    x: float64
+    y: float64
+
+
+@dataclass
+class Pose2D(IdlStruct, typename="vision_msgs::msg::dds_::Pose2D_"):
+    position: Point2D
+    theta: float64
+
+
+@dataclass
+class BoundingBox2D(IdlStruct, typename="vision_msgs::msg::dds_::BoundingBox2D_"):
+    center: Pose2D
+    size_x: float64
+    size_y: float64
+
+
+@dataclass
+class ObjectHypothesis(IdlStruct, typename="vision_msgs::msg::dds_::ObjectHypothesis_"):
+    class_id: str
+    score: float64
+
+
+@dataclass
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose
+    covariance: array[float64, 36]
+
+
+@dataclass
+class ObjectHypothesisWithPose(IdlStruct, typename="vision_msgs::msg::dds_::ObjectHypothesisWithPose_"):
+    hypothesis: ObjectHypothesis
+    pose: PoseWithCovariance
+
+
+@dataclass
+class Detection2D(IdlStruct, typename="vision_msgs::msg::dds_::Detection2D_"):
+    header: Header
+    results: sequence[ObjectHypothesisWithPose]
+    bbox: BoundingBox2D
+    id: str
+
+
+@dataclass
+class Detection2DArray(IdlStruct, typename="vision_msgs::msg::dds_::Detection2DArray_"):
+    header: Header
+    detections: sequence[Detection2D]
+
+
 def stamp(header):
     return header.stamp.sec + header.stamp.nanosec * 1e-9
 
@@ -148,6 +199,9 @@ def main():
         "phase": (String, state),
         "governor": (String, state),
         "diagnostics": (DiagnosticArray, state),
+        "pad_pose": (PoseStamped, sensor),
+        "hazards": (Detection2DArray, sensor),
+        "plan": (String, state),
     }
     readers = {
         name: DataReader(participant, Topic(participant, f"rt/qosrt/{vehicle}/{name}", kind), qos=qos)
@@ -161,7 +215,7 @@ def main():
                 if not hasattr(sample, "header") and not hasattr(sample, "data"):
                     continue  # the writer went away: an instance state change, not a message
                 out = {"topic": name}
-                if name == "pose":
+                if name in ("pose", "pad_pose"):
                     p, q = sample.pose.position, sample.pose.orientation
                     out.update(t=stamp(sample.header), frame=sample.header.frame_id,
                                position=[p.x, p.y, p.z], orientation=[q.x, q.y, q.z, q.w])
@@ -172,6 +226,12 @@ def main():
                 elif name == "velocity_setpoint":
                     v = sample.twist.linear
                     out.update(t=stamp(sample.header), frame=sample.header.frame_id, linear=[v.x, v.y, v.z])
+                elif name == "hazards":
+                    out.update(t=stamp(sample.header), detections=[
+                        {"class": d.results[0].hypothesis.class_id, "score": d.results[0].hypothesis.score,
+                         "box": [d.bbox.center.position.x, d.bbox.center.position.y, d.bbox.size_x, d.bbox.size_y],
+                         "covariance0": d.results[0].pose.covariance[0]}
+                        for d in sample.detections])
                 elif name == "diagnostics":
                     out.update(t=stamp(sample.header), status=[
                         {"name": s.name, "level": s.level, "values": {kv.key: kv.value for kv in s.values}}

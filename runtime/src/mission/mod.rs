@@ -10,7 +10,9 @@ pub mod runner;
 pub mod sequencer;
 
 pub use crate::governor::GovernorDecision;
-pub use observer::{MissionObserver, PlanAnswer, PlanRequest, VehicleStatus};
+pub use observer::{
+    MissionObserver, PlanAnswer, PlanForecast, PlanRequest, PlannedPhase, VehicleStatus,
+};
 pub use replay::{replay, ChannelDiff, ReplayError, ReplayOptions, ReplayReport};
 pub use report::MissionLog;
 pub use runner::{describe_mission, MissionRunner, RunnerError, RunnerOptions, StepReport};

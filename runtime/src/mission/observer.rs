@@ -33,6 +33,34 @@ pub trait MissionObserver: Send {
     }
     /// The answer to a plan change.
     fn plan_answer(&self, _answer: &PlanAnswer) {}
+    /// The plan and the energy forecast, after each re-plan.
+    fn plan(&self, _plan: &PlanForecast) {}
+    /// The mission's bus, to follow topics the runner does not hand on (the tracker's estimate,
+    /// the hazards): called once, when the observer is added.
+    fn watch_bus(&mut self, _bus: &crate::bus::Bus) {}
+}
+
+/// The plan for the rest of the mission and its energy forecast, as the last re-plan made them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanForecast {
+    pub time_s: f64,
+    /// What set the re-plan off.
+    pub trigger: String,
+    pub reserve_fraction: f64,
+    /// Energy left before the cutoff, the energy the rest needs at the planned levels, the
+    /// margin over the reserve at the end, and the remaining energy's standard deviation.
+    pub remaining_energy_wh: f64,
+    pub needed_wh: f64,
+    pub margin_wh: f64,
+    pub sigma_wh: f64,
+    /// The phases still to fly, each with every task's planned level.
+    pub phases: Vec<PlannedPhase>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlannedPhase {
+    pub name: String,
+    pub levels: BTreeMap<String, usize>,
 }
 
 /// A change to the plan asked for in flight (`qosrt fleet set VEHICLE reserve=0.3`).

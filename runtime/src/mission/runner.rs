@@ -8,7 +8,9 @@
 //! harness in lockstep with its world on a [`VirtualScheduler`](crate::scheduler::VirtualScheduler).
 
 use super::input_rates::InputRateMeter;
-use super::observer::{MissionObserver, PlanAnswer, PlanRequest, VehicleStatus};
+use super::observer::{
+    MissionObserver, PlanAnswer, PlanForecast, PlanRequest, PlannedPhase, VehicleStatus,
+};
 use super::report::MissionLog;
 use super::sequencer::{
     AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, PhaseKind,
@@ -146,6 +148,8 @@ pub struct MissionRunner<S: TaskScheduler> {
     /// Who else hears of the mission (the ROS 2 node), the levels they last heard, and when.
     observers: Vec<Box<dyn MissionObserver>>,
     observed_tasks: Option<(Vec<TaskLevel>, f64)>,
+    /// The re-plan the observers last heard of (`Some(None)`: the plan for a full pack).
+    observed_replan_s: Option<Option<f64>>,
     /// How often the topics that trigger tasks deliver, and their publish counters.
     input_rates: InputRateMeter,
     input_activity: Vec<std::sync::Arc<crate::bus::TopicActivity>>,
@@ -218,6 +222,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             recorded_levels: None,
             observers: Vec::new(),
             observed_tasks: None,
+            observed_replan_s: None,
         })
     }
 
@@ -231,8 +236,73 @@ impl<S: TaskScheduler> MissionRunner<S> {
     }
 
     /// Tells `observer` what the mission does from now on.
-    pub fn observe(&mut self, observer: Box<dyn MissionObserver>) {
+    pub fn observe(&mut self, mut observer: Box<dyn MissionObserver>) {
+        observer.watch_bus(self.scheduler.bus());
         self.observers.push(observer);
+    }
+
+    /// The plan and forecast of the last re-plan, for the observers, once per re-plan.
+    fn observe_plan(&mut self, now_s: f64) {
+        // Before the first re-plan: the plan the governor started from, for a full pack.
+        let (time_s, trigger, remaining_energy_wh, needed_wh, margin_wh, sigma_wh) =
+            match self.governor.last_replan() {
+                Some(replan) => (
+                    replan.time_s,
+                    replan.trigger.to_string(),
+                    replan.remaining_energy_wh,
+                    replan.needed_wh,
+                    replan.margin_wh,
+                    replan.sigma_wh,
+                ),
+                None => {
+                    let plan = self.governor.initial_plan();
+                    let usable_wh = self.governor.usable_full_wh();
+                    let available_wh = usable_wh * (1.0 - self.governor.reserve_fraction());
+                    (
+                        now_s,
+                        "the plan for a full pack".to_string(),
+                        usable_wh,
+                        plan.energy_wh,
+                        available_wh - plan.energy_wh,
+                        0.0,
+                    )
+                }
+            };
+        let replanned_at = self.governor.last_replan().map(|r| r.time_s);
+        if self.observed_replan_s.is_some() && self.observed_replan_s == Some(replanned_at) {
+            return;
+        }
+        self.observed_replan_s = Some(replanned_at);
+        let first = self.governor.planned_levels();
+        let phase_in_flight = self.model.config.mission.phases.len() - first.len();
+        let phases = first
+            .iter()
+            .enumerate()
+            .map(|(offset, levels)| PlannedPhase {
+                name: self.model.config.mission.phases[phase_in_flight + offset]
+                    .name
+                    .clone(),
+                levels: self
+                    .named_levels(levels)
+                    .tasks
+                    .into_iter()
+                    .map(|(task, level)| (task, level.level))
+                    .collect(),
+            })
+            .collect();
+        let plan = PlanForecast {
+            time_s,
+            trigger,
+            reserve_fraction: self.governor.reserve_fraction(),
+            remaining_energy_wh,
+            needed_wh,
+            margin_wh,
+            sigma_wh,
+            phases,
+        };
+        for observer in &self.observers {
+            observer.plan(&plan);
+        }
     }
 
     /// The tasks' levels and statistics for the observers: when a level changes, and once a
@@ -241,6 +311,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
         if self.observers.is_empty() {
             return;
         }
+        self.observe_plan(now_s);
         let levels = self.with_fixed(self.governor.current_levels());
         if let Some((observed, at_s)) = &self.observed_tasks {
             if *observed == levels && now_s - at_s < OBSERVED_TASKS_PERIOD_S {

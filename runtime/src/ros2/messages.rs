@@ -200,6 +200,153 @@ pub struct CompressedImage {
     pub data: Vec<u8>,
 }
 
+/// `vision_msgs/Point2D`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Point2D {
+    pub x: f64,
+    pub y: f64,
+}
+
+/// `vision_msgs/Pose2D`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Pose2D {
+    pub position: Point2D,
+    pub theta: f64,
+}
+
+/// `vision_msgs/BoundingBox2D`: the box's centre and size, in pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct BoundingBox2D {
+    pub center: Pose2D,
+    pub size_x: f64,
+    pub size_y: f64,
+}
+
+/// `vision_msgs/ObjectHypothesis`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ObjectHypothesis {
+    pub class_id: String,
+    pub score: f64,
+}
+
+/// `geometry_msgs/PoseWithCovariance`'s `float64[36]`: a fixed array, no length on the wire.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Covariance(pub [f64; 36]);
+
+impl Serialize for Covariance {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeTuple;
+        let mut tuple = serializer.serialize_tuple(36)?;
+        for value in &self.0 {
+            tuple.serialize_element(value)?;
+        }
+        tuple.end()
+    }
+}
+
+/// `geometry_msgs/PoseWithCovariance`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PoseWithCovariance {
+    pub pose: Pose,
+    pub covariance: Covariance,
+}
+
+/// `vision_msgs/ObjectHypothesisWithPose`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ObjectHypothesisWithPose {
+    pub hypothesis: ObjectHypothesis,
+    pub pose: PoseWithCovariance,
+}
+
+/// `vision_msgs/Detection2D`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Detection2D {
+    pub header: Header,
+    pub results: Vec<ObjectHypothesisWithPose>,
+    pub bbox: BoundingBox2D,
+    pub id: String,
+}
+
+/// `vision_msgs/Detection2DArray`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Detection2DArray {
+    pub header: Header,
+    pub detections: Vec<Detection2D>,
+}
+
+const IDENTITY: Quaternion = Quaternion {
+    x: 0.0,
+    y: 0.0,
+    z: 0.0,
+    w: 1.0,
+};
+
+/// A hazard report as `vision_msgs/Detection2DArray`, stamped at the frame's capture: each
+/// box in the frame's pixels, its class and confidence, and where it lies on the ground in
+/// `map` (ENU; the origin where that is not known), its covariance unknown (`-1` first, as ROS
+/// marks it).
+pub fn hazard_detections(report: &crate::topics::HazardReport) -> Detection2DArray {
+    let header = Header::at(report.capture_time_s, "camera");
+    let mut unknown = [0.0; 36];
+    unknown[0] = -1.0;
+    let detections = report
+        .detections
+        .iter()
+        .enumerate()
+        .map(|(index, detection)| {
+            let bbox = &detection.bbox;
+            Detection2D {
+                header: header.clone(),
+                results: vec![ObjectHypothesisWithPose {
+                    hypothesis: ObjectHypothesis {
+                        class_id: detection.class_name.to_string(),
+                        score: detection.confidence,
+                    },
+                    pose: PoseWithCovariance {
+                        pose: Pose {
+                            position: detection
+                                .position_ned_m
+                                .as_ref()
+                                .map_or(Point::default(), enu),
+                            orientation: IDENTITY,
+                        },
+                        covariance: Covariance(unknown),
+                    },
+                }],
+                bbox: BoundingBox2D {
+                    center: Pose2D {
+                        position: Point2D {
+                            x: (bbox.x_min + bbox.x_max) / 2.0,
+                            y: (bbox.y_min + bbox.y_max) / 2.0,
+                        },
+                        theta: 0.0,
+                    },
+                    size_x: bbox.x_max - bbox.x_min,
+                    size_y: bbox.y_max - bbox.y_min,
+                },
+                id: format!("{}/{index}", report.frame_index),
+            }
+        })
+        .collect();
+    Detection2DArray { header, detections }
+}
+
+/// The pad in `map` (ENU) where the tracker puts it: the vehicle's position less its estimate
+/// of the vehicle relative to the pad.
+pub fn pad_pose(
+    time_s: f64,
+    vehicle_ned_m: &Vector3<f64>,
+    uav_relative_ned_m: &Vector3<f64>,
+) -> PoseStamped {
+    PoseStamped {
+        header: Header::at(time_s, "map"),
+        pose: Pose {
+            position: enu(&(vehicle_ned_m - uav_relative_ned_m)),
+            orientation: IDENTITY,
+        },
+    }
+}
+
 /// North-east-down to east-north-up.
 pub fn enu(ned: &Vector3<f64>) -> Point {
     Point {

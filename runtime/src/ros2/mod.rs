@@ -11,12 +11,13 @@
 pub mod messages;
 
 use crate::governor::GovernorDecision;
-use crate::mission::{PlanAnswer, PlanRequest, VehicleStatus};
+use crate::mission::{PlanAnswer, PlanForecast, PlanRequest, VehicleStatus};
 use crate::record::recorder::QosLevels;
 use crate::scheduler::TaskStats;
 use crate::task::TaskHealth;
 use crate::telemetry::BatteryTelemetry;
 use crate::topics::VehicleState;
+use crate::topics::{HazardReport, RelativeState, HAZARDS, RELATIVE_STATE};
 use messages::{
     BatteryState, DiagnosticArray, DiagnosticStatus, Header, KeyValue, StringMessage, Twist,
     TwistStamped,
@@ -55,7 +56,7 @@ fn valid_segment(name: &str) -> bool {
 }
 
 /// One thing that happened, for the node's thread to publish.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub enum Update {
     Vehicle {
         time_s: f64,
@@ -79,6 +80,21 @@ pub enum Update {
     },
     Status(VehicleStatus),
     PlanAnswer(PlanAnswer),
+    Plan(PlanForecast),
+    /// The bus topics the node follows itself.
+    Watch(BusWatch),
+}
+
+/// The node's own readers of the mission's bus.
+pub struct BusWatch {
+    relative: crate::bus::Subscriber<RelativeState>,
+    hazards: crate::bus::Subscriber<HazardReport>,
+}
+
+impl std::fmt::Debug for BusWatch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("BusWatch")
+    }
 }
 
 /// The node, seen from the mission loop.
@@ -138,6 +154,7 @@ impl Ros2Node {
                         Err(mpsc::RecvTimeoutError::Timeout) => {}
                         Err(mpsc::RecvTimeoutError::Disconnected) => break,
                     }
+                    publishers.follow_bus();
                     let taken = publishers.take_requests();
                     if !taken.is_empty() {
                         lock(&received).extend(taken);
@@ -219,6 +236,21 @@ impl crate::mission::MissionObserver for Ros2Node {
     fn plan_answer(&self, answer: &PlanAnswer) {
         self.send(Update::PlanAnswer(answer.clone()));
     }
+    fn plan(&self, plan: &PlanForecast) {
+        self.send(Update::Plan(plan.clone()));
+    }
+    fn watch_bus(&mut self, bus: &crate::bus::Bus) {
+        let watch = bus.subscriber(RELATIVE_STATE).and_then(|relative| {
+            Ok(BusWatch {
+                relative,
+                hazards: bus.subscriber(HAZARDS)?,
+            })
+        });
+        match watch {
+            Ok(watch) => self.send(Update::Watch(watch)),
+            Err(error) => tracing::warn!(%error, "the ROS 2 node cannot follow the bus"),
+        }
+    }
 }
 
 impl Drop for Ros2Node {
@@ -279,6 +311,12 @@ struct Publishers {
     fleet_status: Publisher<StringMessage>,
     plan_requests: Subscription<StringMessage>,
     plan_answers: Publisher<StringMessage>,
+    plan: Publisher<StringMessage>,
+    pad_pose: Publisher<messages::PoseStamped>,
+    hazards: Publisher<messages::Detection2DArray>,
+    watch: Option<BusWatch>,
+    /// The vehicle's last position, for the pad's.
+    vehicle_ned_m: Option<Vector3<f64>>,
     /// Each request id taken, and its answer once given: an asker repeats a request until it
     /// hears the answer (DDS drops what is sent before the two sides have met), and a repeat
     /// is answered again, not applied again.
@@ -352,12 +390,52 @@ impl Publishers {
                 ("std_msgs", "String"),
                 request_qos(),
             )?,
+            plan: publisher(
+                &mut node,
+                namespace,
+                "plan",
+                ("std_msgs", "String"),
+                state_qos(1),
+            )?,
+            pad_pose: publisher(
+                &mut node,
+                namespace,
+                "pad_pose",
+                ("geometry_msgs", "PoseStamped"),
+                sensor_data_qos(),
+            )?,
+            hazards: publisher(
+                &mut node,
+                namespace,
+                "hazards",
+                ("vision_msgs", "Detection2DArray"),
+                sensor_data_qos(),
+            )?,
+            watch: None,
+            vehicle_ned_m: None,
             vehicle: vehicle.into(),
             answers: Default::default(),
             _node: node,
             _context: context,
             design_capacity_ah,
         })
+    }
+
+    /// What the bus has new: the pad where the tracker puts it, the hazards.
+    fn follow_bus(&mut self) {
+        let Some(watch) = &mut self.watch else {
+            return;
+        };
+        if let (Some(relative), Some(vehicle)) = (watch.relative.take_new(), self.vehicle_ned_m) {
+            let estimate = &relative.value.estimate;
+            let pose = messages::pad_pose(estimate.time_s, &vehicle, &estimate.uav_relative_ned_m);
+            let _ = self.pad_pose.publish(pose);
+        }
+        if let Some(report) = watch.hazards.take_new() {
+            let _ = self
+                .hazards
+                .publish(messages::hazard_detections(&report.value));
+        }
     }
 
     /// The plan changes received since the last look; one that is not a request is answered
@@ -399,10 +477,21 @@ impl Publishers {
 
     fn publish(&mut self, update: Update) {
         let result = match update {
-            Update::Vehicle { time_s, state } => match messages::vehicle_pose(time_s, &state) {
-                Some(pose) => self.pose.publish(pose).map_err(|e| format!("{e:?}")),
-                None => Ok(()),
-            },
+            Update::Vehicle { time_s, state } => {
+                self.vehicle_ned_m = state.position_ned_m.or(self.vehicle_ned_m);
+                match messages::vehicle_pose(time_s, &state) {
+                    Some(pose) => self.pose.publish(pose).map_err(|e| format!("{e:?}")),
+                    None => Ok(()),
+                }
+            }
+            Update::Plan(plan) => self
+                .plan
+                .publish(StringMessage { data: json(&plan) })
+                .map_err(|e| format!("{e:?}")),
+            Update::Watch(watch) => {
+                self.watch = Some(watch);
+                Ok(())
+            }
             Update::Battery(telemetry) => self
                 .battery
                 .publish(BatteryState::from_telemetry(
