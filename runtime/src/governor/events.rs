@@ -197,11 +197,20 @@ pub struct ReplanSummary {
     pub available_wh: f64,
     /// Corrected energy the levels that were in force need for the rest of the mission.
     pub needed_wh: f64,
+    /// The margin a plan must keep to be switched up to (hysteresis): not what is left over.
     pub margin_wh: f64,
     /// Standard deviation of the remaining energy (the estimator's SoC σ × pack energy).
     pub sigma_wh: f64,
     pub correction_ratio: f64,
     pub decision: Decision,
+}
+
+impl ReplanSummary {
+    /// The energy left over the reserve at the mission's end, if the levels in force at the
+    /// re-plan fly the rest: what a ground station calls the margin against the plan.
+    pub fn end_margin_wh(&self) -> f64 {
+        self.available_wh - self.needed_wh
+    }
 }
 
 #[cfg(test)]

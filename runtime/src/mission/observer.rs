@@ -81,7 +81,8 @@ pub struct PlanAnswer {
     /// Why not, when refused (out of range, not a request).
     pub refusal: Option<String>,
     pub reserve_fraction: f64,
-    /// The energy left over the reserve at the end of the mission, by the re-plan.
+    /// The energy left over the reserve at the end of the mission, by the re-plan (its energy
+    /// above the reserve less what the levels in force need for the rest).
     pub margin_wh: Option<f64>,
     /// The re-plan found no levels that finish the mission: the vehicle lands.
     pub land_now: bool,

@@ -21,6 +21,7 @@ use crate::camera::{CameraSource, CameraSourceError};
 use crate::clock::Timestamp;
 use crate::energy::MissionModel;
 use crate::governor::GovernorDecision;
+use crate::governor::ReplanSummary;
 use crate::governor::{Governor, GovernorError, GovernorEvent};
 use crate::link::{FailsafeAction, LinkError, LinkStatus, LinkUpdate, MavlinkLink, VehicleCommand};
 use crate::record::channels::StepRecord;
@@ -251,7 +252,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
                     replan.trigger.to_string(),
                     replan.remaining_energy_wh,
                     replan.needed_wh,
-                    replan.margin_wh,
+                    replan.end_margin_wh(),
                     replan.sigma_wh,
                 ),
                 None => {
@@ -667,7 +668,10 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 accepted: refusal.is_none(),
                 refusal,
                 reserve_fraction: self.governor.reserve_fraction(),
-                margin_wh: self.governor.last_replan().map(|r| r.margin_wh),
+                margin_wh: self
+                    .governor
+                    .last_replan()
+                    .map(ReplanSummary::end_margin_wh),
                 land_now: self.governor.land_now_raised(),
                 levels: self.named_levels(&self.with_fixed(self.governor.current_levels())),
             };
@@ -694,7 +698,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 .map(|index| self.model.config.mission.phases[index].name.clone()),
             battery_fraction: self.log.battery.last.and_then(|b| b.remaining_fraction),
             reserve_fraction: self.governor.reserve_fraction(),
-            margin_wh: replan.map(|r| r.margin_wh),
+            margin_wh: replan.map(ReplanSummary::end_margin_wh),
             available_wh: replan.map(|r| r.available_wh),
             // What is left above the reserve, at the power the levels in force draw.
             flight_time_left_s: replan
