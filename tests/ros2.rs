@@ -330,20 +330,32 @@ fn the_fleet_sees_every_vehicle_and_changes_one_plan_in_flight() {
     let names = [1, 2].map(|n| format!("fleet_{}_{n}", std::process::id()));
     let logs = tempfile::tempdir().unwrap();
     let log_of = |name: &str| logs.path().join(format!("{name}.log"));
-    let vehicles: Vec<std::process::Child> = names
-        .iter()
-        .enumerate()
-        .map(|(seed, name)| {
-            Command::new(env!("CARGO_BIN_EXE_qosrt"))
-                .current_dir(repo_root())
-                .args(["sim", "--tracking-s", "60", "--seed", &seed.to_string()])
-                .arg(format!("--ros2={name}"))
-                .stdout(Stdio::null())
-                .stderr(std::fs::File::create(log_of(name)).unwrap())
-                .spawn()
-                .unwrap()
-        })
-        .collect();
+    // Killed at the end, whether the test passes or panics.
+    struct Vehicles(Vec<std::process::Child>);
+    impl Drop for Vehicles {
+        fn drop(&mut self) {
+            for vehicle in &mut self.0 {
+                let _ = vehicle.kill();
+                let _ = vehicle.wait();
+            }
+        }
+    }
+    let _vehicles = Vehicles(
+        names
+            .iter()
+            .enumerate()
+            .map(|(seed, name)| {
+                Command::new(env!("CARGO_BIN_EXE_qosrt"))
+                    .current_dir(repo_root())
+                    .args(["sim", "--tracking-s", "60", "--seed", &seed.to_string()])
+                    .arg(format!("--ros2={name}"))
+                    .stdout(Stdio::null())
+                    .stderr(std::fs::File::create(log_of(name)).unwrap())
+                    .spawn()
+                    .unwrap()
+            })
+            .collect(),
+    );
     // What each vehicle said, for a failure's message.
     let said = || {
         names
@@ -459,10 +471,6 @@ fn the_fleet_sees_every_vehicle_and_changes_one_plan_in_flight() {
     let nobody = fleet(&["set", "nobody_here", "reserve=0.3", "--timeout-s", "2"]);
     assert_eq!(nobody.status.code(), Some(4), "{}", output_text(&nobody));
     assert!(output_text(&nobody).contains("no answer from `nobody_here`"));
-    for mut vehicle in vehicles {
-        let _ = vehicle.kill();
-        let _ = vehicle.wait();
-    }
 }
 
 /// `--camera ros2:/TOPIC` fed by an independent publisher (Cyclone DDS, as a camera driver):

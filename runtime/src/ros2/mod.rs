@@ -117,6 +117,10 @@ pub struct FleetStatus {
     pub status: VehicleStatus,
 }
 
+/// How long the mission waits for its node to be ready: a DDS participant that has not come
+/// up by then is a named error, not a mission that never starts.
+const START_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(15);
+
 /// How long the node's thread waits for the loop before it looks for requests again.
 const POLL_PERIOD: std::time::Duration = std::time::Duration::from_millis(10);
 
@@ -162,9 +166,19 @@ impl Ros2Node {
                 }
             })
             .map_err(Ros2Error::Thread)?;
-        started_rx
-            .recv()
-            .map_err(|_| Ros2Error::Start("the node's thread ended".into()))??;
+        match started_rx.recv_timeout(START_TIMEOUT) {
+            Ok(started) => started?,
+            Err(mpsc::RecvTimeoutError::Timeout) => {
+                // The thread is left to itself: it holds nothing the mission needs.
+                return Err(Ros2Error::Start(format!(
+                    "the DDS participant was not ready within {} s",
+                    START_TIMEOUT.as_secs()
+                )));
+            }
+            Err(mpsc::RecvTimeoutError::Disconnected) => {
+                return Err(Ros2Error::Start("the node's thread ended".into()))
+            }
+        }
         Ok(Self {
             updates: Some(updates),
             thread: Some(thread),
