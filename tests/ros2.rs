@@ -526,7 +526,10 @@ fn a_ros2_image_topic_is_a_camera() {
     }
     assert!(colour > 10, "{colour} rgb8 frames");
     assert!(errors.iter().any(|e| e.contains("yuv422")), "{errors:?}");
-    assert!(errors.iter().any(|e| e.contains("(80, 48)")), "{errors:?}");
+    assert!(
+        errors.iter().any(|e| e.contains("80×48 pixels")),
+        "{errors:?}"
+    );
     let stats = camera.stats();
     assert_eq!(stats.malformed as usize, errors.len());
     assert_eq!(

@@ -26,8 +26,7 @@
 //! - **A failing pipeline** (an element's error on the bus) is [`CameraSourceError::Pipeline`];
 //!   the end of a file is [`CameraSourceError::Ended`].
 
-use std::collections::VecDeque;
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use algorithms::vision::image::GrayImage;
@@ -37,8 +36,8 @@ use gstreamer_app as gst_app;
 use gstreamer_video as gst_video;
 use gstreamer_video::prelude::*;
 
+use super::live::{deliver, lock, LiveQueue};
 use super::{CameraSource, CameraSourceError, CameraStats, CapturedFrame};
-use crate::topics::CameraFrame;
 
 /// The appsink's name inside the pipeline.
 const SINK_NAME: &str = "qosrt_camera_sink";
@@ -124,34 +123,12 @@ impl GstreamerConfig {
     }
 }
 
-/// One sample as the streaming thread left it.
-struct Arrived {
-    frame_index: u64,
-    image: Result<GrayImage, SampleError>,
-    /// When it was captured, on this host's monotonic clock.
-    captured_at: Instant,
-    /// When the appsink handed it over.
-    arrived_at: Instant,
-    /// Its capture time is the sender's own.
-    sender_stamped: bool,
-}
-
-#[derive(Default)]
-struct Shared {
-    queue: VecDeque<Arrived>,
-    samples: u64,
-    dropped: u64,
-    sender_stamps_refused: u64,
-    /// Unparked at each frame (the runtime's loop, so it takes the frame at once).
-    waker: Option<std::thread::Thread>,
-}
-
 /// A GStreamer pipeline as a camera.
 pub struct GstreamerSource {
     name: String,
     pipeline: gst::Pipeline,
     bus: gst::Bus,
-    shared: Arc<Mutex<Shared>>,
+    shared: Arc<Mutex<LiveQueue<SampleError>>>,
     config: GstreamerConfig,
     expected_size_px: Option<(usize, usize)>,
     started_at: Instant,
@@ -214,8 +191,7 @@ impl GstreamerSource {
         let bus = pipeline
             .bus()
             .ok_or_else(|| failed("the pipeline has no bus".into()))?;
-        let shared = Arc::new(Mutex::new(Shared::default()));
-        let queue_frames = config.queue_frames;
+        let shared = LiveQueue::shared(config.queue_frames);
         let callback_shared = shared.clone();
         sink.set_callbacks(
             gst_app::AppSinkCallbacks::builder()
@@ -228,26 +204,12 @@ impl GstreamerSource {
                     };
                     let captured_at = Instant::now() - age;
                     let image = gray_image(&sample);
-                    let mut shared = lock(&callback_shared);
-                    if sender_stamp == SenderStamp::Refused {
-                        shared.sender_stamps_refused += 1;
-                    }
-                    let frame_index = shared.samples;
-                    shared.samples += 1;
-                    if shared.queue.len() >= queue_frames {
-                        shared.queue.pop_front();
-                        shared.dropped += 1;
-                    }
-                    shared.queue.push_back(Arrived {
-                        frame_index,
+                    lock(&callback_shared).push(
                         image,
                         captured_at,
-                        arrived_at: Instant::now(),
-                        sender_stamped: matches!(sender_stamp, SenderStamp::Age(_)),
-                    });
-                    if let Some(waker) = &shared.waker {
-                        waker.unpark();
-                    }
+                        matches!(sender_stamp, SenderStamp::Age(_)),
+                        sender_stamp == SenderStamp::Refused,
+                    );
                     Ok(gst::FlowSuccess::Ok)
                 })
                 .build(),
@@ -305,17 +267,12 @@ impl CameraSource for GstreamerSource {
     }
 
     fn wake_on_frame(&mut self, thread: std::thread::Thread) {
-        lock(&self.shared).waker = Some(thread);
+        lock(&self.shared).wake(thread);
     }
 
     fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError> {
         self.poll_bus()?;
-        let arrived = {
-            let mut shared = lock(&self.shared);
-            self.stats.dropped = shared.dropped;
-            self.stats.sender_stamps_refused = shared.sender_stamps_refused;
-            shared.queue.pop_front()
-        };
+        let arrived = lock(&self.shared).pop();
         let Some(arrived) = arrived else {
             if self.ended {
                 // A file's end after its last frame; a failed pipeline said why once already.
@@ -340,49 +297,21 @@ impl CameraSource for GstreamerSource {
         };
         self.last_frame_at = Some(Instant::now());
         self.stalled = false;
-        let malformed = |stats: &mut CameraStats, problem: SampleError| {
-            stats.malformed += 1;
-            CameraSourceError::Malformed {
-                source_name: self.name.clone(),
-                frame_index: arrived.frame_index,
-                problem: Box::new(problem),
-            }
-        };
-        let image = match arrived.image {
-            Ok(image) => image,
-            Err(problem) => return Err(malformed(&mut self.stats, problem)),
-        };
-        let found = (image.width(), image.height());
-        let expected = *self.expected_size_px.get_or_insert(found);
-        if found != expected {
-            return Err(malformed(
-                &mut self.stats,
-                SampleError::WrongSize { found, expected },
-            ));
-        }
-        let age_s = arrived.captured_at.elapsed().as_secs_f64();
-        if age_s > self.config.late_after_s {
+        let frame = deliver(
+            &self.name,
+            arrived,
+            &mut self.expected_size_px,
+            &mut self.stats,
+            now_s,
+        )?;
+        if now_s - frame.capture_time_s > self.config.late_after_s {
             self.stats.late += 1;
         }
-        self.stats.delivered += 1;
-        self.stats.sender_stamped += u64::from(arrived.sender_stamped);
-        Ok(Some(CapturedFrame {
-            frame: CameraFrame {
-                vehicle_at_capture: None,
-                frame_index: arrived.frame_index,
-                image: Arc::new(image),
-            },
-            capture_time_s: now_s - age_s,
-            arrived_s: now_s - arrived.arrived_at.elapsed().as_secs_f64(),
-        }))
+        Ok(Some(frame))
     }
 
     fn stats(&self) -> CameraStats {
-        let mut stats = self.stats;
-        let shared = lock(&self.shared);
-        stats.dropped = shared.dropped;
-        stats.sender_stamps_refused = shared.sender_stamps_refused;
-        stats
+        lock(&self.shared).counted(self.stats)
     }
 }
 
@@ -390,10 +319,6 @@ impl Drop for GstreamerSource {
     fn drop(&mut self) {
         let _ = self.pipeline.set_state(gst::State::Null);
     }
-}
-
-fn lock(shared: &Mutex<Shared>) -> MutexGuard<'_, Shared> {
-    shared.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
 /// The sender's capture time on the sample's buffer: a `timestamp/x-ntp` reference timestamp.
@@ -459,11 +384,6 @@ enum SampleError {
     },
     #[error(transparent)]
     Image(#[from] algorithms::vision::image::FrameError),
-    #[error("{}×{} pixels, the camera's are {}×{}", found.0, found.1, expected.0, expected.1)]
-    WrongSize {
-        found: (usize, usize),
-        expected: (usize, usize),
-    },
 }
 
 /// The sample's grey plane, row by row (GStreamer pads rows to 4 bytes).

@@ -19,6 +19,8 @@
 pub mod folder;
 #[cfg(feature = "gstreamer")]
 pub mod gstreamer;
+#[cfg(any(feature = "gstreamer", feature = "ros2"))]
+mod live;
 #[cfg(feature = "ros2")]
 pub mod ros2;
 mod spec;

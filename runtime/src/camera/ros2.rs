@@ -4,13 +4,13 @@
 //! (the driver's capture time, ROS time) where that is plausible, else at its arrival. A frame
 //! of another encoding or size is a named error, counted as malformed; the mission goes on.
 
-use super::{CameraFrame, CameraSource, CameraSourceError, CameraStats, CapturedFrame};
+use super::live::{deliver, lock, LiveQueue};
+use super::{CameraSource, CameraSourceError, CameraStats, CapturedFrame};
 use crate::ros2::messages::{CompressedImage, Header, Image};
 use crate::ros2::{open_node, sensor_data_qos, subscription, Subscription};
 use algorithms::vision::image::GrayImage;
-use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -42,45 +42,18 @@ pub enum FrameProblem {
         #[source]
         source: image::ImageError,
     },
-    #[error("the frame is {found:?} pixels, the camera's are {expected:?}")]
-    WrongSize {
-        found: (usize, usize),
-        expected: (usize, usize),
-    },
     #[error(transparent)]
     Image(#[from] algorithms::vision::image::FrameError),
-}
-
-/// A frame as the subscription's thread left it.
-struct Arrived {
-    index: u64,
-    image: Result<GrayImage, FrameProblem>,
-    captured_at: Instant,
-    arrived_at: Instant,
-    stamped: bool,
-}
-
-#[derive(Default)]
-struct Shared {
-    queue: VecDeque<Arrived>,
-    dropped: u64,
-    stamps_refused: u64,
-}
-
-fn lock(shared: &Mutex<Shared>) -> MutexGuard<'_, Shared> {
-    // A queue of frames is whole whatever panicked while it was held.
-    shared.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
 /// The camera: a ROS 2 subscription read on its own thread.
 pub struct Ros2Camera {
     name: String,
-    shared: Arc<Mutex<Shared>>,
+    shared: Arc<Mutex<LiveQueue<FrameProblem>>>,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<()>>,
     expected_size_px: Option<(usize, usize)>,
     stats: CameraStats,
-    wake: Arc<Mutex<Option<std::thread::Thread>>>,
 }
 
 impl Ros2Camera {
@@ -128,17 +101,15 @@ impl Ros2Camera {
                 .map_err(|e| failed(e.to_string()))?,
             )
         };
-        let shared = Arc::new(Mutex::new(Shared::default()));
+        let shared = LiveQueue::shared(QUEUE_FRAMES);
         let stop = Arc::new(AtomicBool::new(false));
-        let wake: Arc<Mutex<Option<std::thread::Thread>>> = Arc::default();
         let thread = {
-            let (shared, stop, wake) = (shared.clone(), stop.clone(), wake.clone());
+            let (shared, stop) = (shared.clone(), stop.clone());
             std::thread::Builder::new()
                 .name("qosrt-ros2-camera".into())
                 .spawn(move || {
                     // The node and its context live as long as the thread reads.
                     let _node = (context, node);
-                    let mut index = 0;
                     while !stop.load(Ordering::Acquire) {
                         let Some((image, header)) = reader.take() else {
                             std::thread::sleep(POLL_PERIOD);
@@ -146,28 +117,8 @@ impl Ros2Camera {
                         };
                         let arrived_at = Instant::now();
                         let age = stamp_age(&header, SystemTime::now());
-                        let mut shared = lock(&shared);
-                        if age.is_none() {
-                            shared.stamps_refused += 1;
-                        }
-                        if shared.queue.len() == QUEUE_FRAMES {
-                            shared.queue.pop_front();
-                            shared.dropped += 1;
-                        }
-                        shared.queue.push_back(Arrived {
-                            index,
-                            image,
-                            captured_at: age.map_or(arrived_at, |age| arrived_at - age),
-                            arrived_at,
-                            stamped: age.is_some(),
-                        });
-                        drop(shared);
-                        index += 1;
-                        if let Some(thread) =
-                            wake.lock().unwrap_or_else(PoisonError::into_inner).as_ref()
-                        {
-                            thread.unpark();
-                        }
+                        let captured_at = age.map_or(arrived_at, |age| arrived_at - age);
+                        lock(&shared).push(image, captured_at, age.is_some(), age.is_none());
                     }
                 })
                 .map_err(|e| failed(format!("cannot start its thread: {e}")))?
@@ -179,7 +130,6 @@ impl Ros2Camera {
             thread: Some(thread),
             expected_size_px,
             stats: CameraStats::default(),
-            wake,
         })
     }
 }
@@ -280,53 +230,25 @@ impl CameraSource for Ros2Camera {
     }
 
     fn next_frame(&mut self, now_s: f64) -> Result<Option<CapturedFrame>, CameraSourceError> {
-        let Some(arrived) = lock(&self.shared).queue.pop_front() else {
+        let Some(arrived) = lock(&self.shared).pop() else {
             return Ok(None);
         };
-        let malformed = |stats: &mut CameraStats, problem: FrameProblem| {
-            stats.malformed += 1;
-            CameraSourceError::Malformed {
-                source_name: self.name.clone(),
-                frame_index: arrived.index,
-                problem: Box::new(problem),
-            }
-        };
-        let image = match arrived.image {
-            Ok(image) => image,
-            Err(problem) => return Err(malformed(&mut self.stats, problem)),
-        };
-        let found = (image.width(), image.height());
-        let expected = *self.expected_size_px.get_or_insert(found);
-        if found != expected {
-            return Err(malformed(
-                &mut self.stats,
-                FrameProblem::WrongSize { found, expected },
-            ));
-        }
-        self.stats.delivered += 1;
-        self.stats.sender_stamped += u64::from(arrived.stamped);
-        Ok(Some(CapturedFrame {
-            frame: CameraFrame {
-                vehicle_at_capture: None,
-                frame_index: arrived.index,
-                image: Arc::new(image),
-            },
-            capture_time_s: now_s - arrived.captured_at.elapsed().as_secs_f64(),
-            arrived_s: now_s - arrived.arrived_at.elapsed().as_secs_f64(),
-        }))
+        deliver(
+            &self.name,
+            arrived,
+            &mut self.expected_size_px,
+            &mut self.stats,
+            now_s,
+        )
+        .map(Some)
     }
 
     fn wake_on_frame(&mut self, thread: std::thread::Thread) {
-        *self.wake.lock().unwrap_or_else(PoisonError::into_inner) = Some(thread);
+        lock(&self.shared).wake(thread);
     }
 
     fn stats(&self) -> CameraStats {
-        let shared = lock(&self.shared);
-        CameraStats {
-            dropped: shared.dropped,
-            sender_stamps_refused: shared.stamps_refused,
-            ..self.stats
-        }
+        lock(&self.shared).counted(self.stats)
     }
 }
 
