@@ -2,6 +2,7 @@
 //! the fleet's status topic (no list of vehicles to keep), and `qosrt fleet set` to change a
 //! vehicle's plan in flight.
 
+use power_models::planner::LevelRange;
 use runtime::mission::{PlanAnswer, PlanRequest};
 use runtime::ros2::messages::StringMessage;
 use runtime::ros2::{
@@ -10,7 +11,7 @@ use runtime::ros2::{
 };
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::io::IsTerminal;
+use std::io::{IsTerminal, Write};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -37,13 +38,16 @@ pub struct FleetArgs {
 
 #[derive(clap::Subcommand)]
 pub enum FleetAction {
-    /// Change a vehicle's plan in flight: `qosrt fleet set drone_1 reserve=0.3` (the reserve,
-    /// a fraction of the full pack's usable energy). The vehicle re-plans at once and answers
-    /// with its levels and margin, or says why not.
+    /// Change a vehicle's plan in flight: `qosrt fleet set drone_1 reserve=0.3
+    /// time_left_s=600 hazard=1..3`. `reserve` is a fraction of the full pack's usable energy;
+    /// `time_left_s` the rest of the mission from now (tracking takes what transit and landing
+    /// leave); `TASK=MIN..MAX`, `TASK=N` or `TASK=all` the levels a task may run at. The
+    /// vehicle applies them together and re-plans at once, answering with its levels and
+    /// margin, or refuses them together and says why.
     Set {
         vehicle: String,
-        #[arg(value_name = "KEY=VALUE", value_parser = parse_change)]
-        change: PlanChange,
+        #[arg(value_name = "KEY=VALUE", required = true, value_parser = parse_change)]
+        changes: Vec<PlanChange>,
         /// How long to wait for the answer (finding the vehicle on the network takes up to
         /// RustDDS's 10 s announcement period).
         #[arg(long, value_name = "S", default_value_t = 25.0)]
@@ -54,26 +58,65 @@ pub enum FleetAction {
     },
 }
 
-/// A change `qosrt fleet set` can ask for.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// One change `qosrt fleet set` can ask for.
+#[derive(Debug, Clone, PartialEq)]
 pub enum PlanChange {
     Reserve(f64),
+    TimeLeft(f64),
+    Levels(String, Option<LevelRange>),
 }
+
+const CHANGE_KEYS: &str = "reserve=FRACTION, time_left_s=SECONDS or TASK=MIN..MAX|N|all";
 
 fn parse_change(text: &str) -> Result<PlanChange, String> {
     let (key, value) = text
         .split_once('=')
-        .ok_or_else(|| format!("expected KEY=VALUE (e.g. reserve=0.3), found `{text}`"))?;
-    let value: f64 = value
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{value}` is not a number; expected {key}=VALUE"))?;
-    match key.trim() {
-        "reserve" => Ok(PlanChange::Reserve(value)),
-        other => Err(format!(
-            "`{other}` is not a change a vehicle takes in flight; expected reserve=FRACTION"
-        )),
+        .map(|(k, v)| (k.trim(), v.trim()))
+        .ok_or_else(|| format!("expected KEY=VALUE ({CHANGE_KEYS}), found `{text}`"))?;
+    let number = |value: &str| {
+        value
+            .parse::<f64>()
+            .map_err(|_| format!("`{value}` is not a number; expected {key}=NUMBER"))
+    };
+    let level = |value: &str| {
+        value.parse::<usize>().map_err(|_| {
+            format!("`{value}` is not a level; expected {key}=MIN..MAX, {key}=N or {key}=all")
+        })
+    };
+    match key {
+        "reserve" => Ok(PlanChange::Reserve(number(value)?)),
+        "time_left_s" => Ok(PlanChange::TimeLeft(number(value)?)),
+        "" => Err(format!("`{text}` names nothing; expected {CHANGE_KEYS}")),
+        task if value == "all" => Ok(PlanChange::Levels(task.into(), None)),
+        task => {
+            let (min, max) = match value.split_once("..") {
+                Some((min, max)) => (level(min)?, level(max.trim_start_matches('='))?),
+                None => (level(value)?, level(value)?),
+            };
+            Ok(PlanChange::Levels(
+                task.into(),
+                Some(LevelRange { min, max }),
+            ))
+        }
     }
+}
+
+/// The request that asks for `changes`, numbered `id`.
+fn request(id: u64, changes: &[PlanChange]) -> PlanRequest {
+    let mut request = PlanRequest {
+        id,
+        ..PlanRequest::default()
+    };
+    for change in changes {
+        match change {
+            PlanChange::Reserve(fraction) => request.reserve_fraction = Some(*fraction),
+            PlanChange::TimeLeft(seconds) => request.time_left_s = Some(*seconds),
+            PlanChange::Levels(task, range) => {
+                request.levels.insert(task.clone(), *range);
+            }
+        }
+    }
+    request
 }
 
 pub fn run(args: &FleetArgs) -> ExitCode {
@@ -81,10 +124,10 @@ pub fn run(args: &FleetArgs) -> ExitCode {
         None => view(args),
         Some(FleetAction::Set {
             vehicle,
-            change,
+            changes,
             timeout_s,
             json,
-        }) => return set(vehicle, *change, *timeout_s, *json),
+        }) => return set(vehicle, changes, *timeout_s, *json),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -147,7 +190,10 @@ fn view(args: &FleetArgs) -> Result<(), Ros2Error> {
                     "time_s": now.duration_since(started).as_secs_f64(),
                     "vehicles": seen,
                 });
-                println!("{snapshot}");
+                // A reader that went away (a closed pipe) ends the view, not a panic.
+                if writeln!(std::io::stdout(), "{snapshot}").is_err() {
+                    return Ok(());
+                }
             } else {
                 print_table(&seen, terminal);
             }
@@ -208,13 +254,13 @@ fn print_table(seen: &[Seen], terminal: bool) {
     }
 }
 
-/// Asks `vehicle` for `change` until it answers (a request sent before the two sides have met
-/// is lost, so it is repeated; the vehicle answers a repeat without applying it again).
-fn set(vehicle: &str, change: PlanChange, timeout_s: f64, json: bool) -> ExitCode {
-    match ask(vehicle, change, timeout_s) {
-        Ok(Some((answer, waited))) => {
+/// Asks `vehicle` for `changes` and prints its answer.
+fn set(vehicle: &str, changes: &[PlanChange], timeout_s: f64, json: bool) -> ExitCode {
+    match ask(vehicle, changes, timeout_s) {
+        Ok(Some(asked)) => {
+            let answer = &asked.answer;
             if json {
-                println!("{}", serde_json::to_string(&answer).unwrap_or_default());
+                println!("{}", serde_json::to_string(&asked).unwrap_or_default());
             } else if answer.accepted {
                 let levels: Vec<String> = answer
                     .levels
@@ -222,15 +268,34 @@ fn set(vehicle: &str, change: PlanChange, timeout_s: f64, json: bool) -> ExitCod
                     .iter()
                     .map(|(task, level)| format!("{task}={}", level.level))
                     .collect();
+                let bounds: Vec<String> = answer
+                    .allowed_levels
+                    .iter()
+                    .map(|(task, range)| format!("{task} in {}..={}", range.min, range.max))
+                    .collect();
                 println!(
-                    "{vehicle}: reserve {:.2}, margin {}, levels {}{} (answered {:.0} ms after the first ask)",
+                    "{vehicle}: reserve {:.2}, time left {}, margin {}, levels {}{}{} \
+                     (found in {:.1} s, answered {:.0} ms after the ask)",
                     answer.reserve_fraction,
+                    answer
+                        .time_left_s
+                        .map_or("—".into(), |s| format!("{s:.0} s")),
                     answer
                         .margin_wh
                         .map_or("—".into(), |m| format!("{m:+.2} Wh")),
                     levels.join(" "),
-                    if answer.land_now { "; landing: the battery cannot finish the mission" } else { "" },
-                    waited.as_secs_f64() * 1e3
+                    if bounds.is_empty() {
+                        String::new()
+                    } else {
+                        format!(" ({})", bounds.join(", "))
+                    },
+                    if answer.land_now {
+                        "; landing: the battery cannot finish the mission"
+                    } else {
+                        ""
+                    },
+                    asked.found_s,
+                    asked.answered_ms
                 );
             } else {
                 eprintln!(
@@ -258,12 +323,22 @@ fn set(vehicle: &str, change: PlanChange, timeout_s: f64, json: bool) -> ExitCod
     }
 }
 
-fn ask(
-    vehicle: &str,
-    change: PlanChange,
-    timeout_s: f64,
-) -> Result<Option<(PlanAnswer, Duration)>, Ros2Error> {
-    let PlanChange::Reserve(reserve_fraction) = change;
+/// A vehicle's answer, with how long it took.
+#[derive(Serialize)]
+struct Asked {
+    #[serde(flatten)]
+    answer: PlanAnswer,
+    /// From the start until the vehicle's request reader and answer writer were matched (the
+    /// DDS discovery of the two sides).
+    found_s: f64,
+    /// From the first ask after that until the answer arrived: the re-plan's round trip.
+    answered_ms: f64,
+}
+
+/// Finds the vehicle's request and answer topics, then asks until it answers (a request sent
+/// before the reliable writer has met its reader could be lost, so it is repeated; the vehicle
+/// answers a repeat without applying it again).
+fn ask(vehicle: &str, changes: &[PlanChange], timeout_s: f64) -> Result<Option<Asked>, Ros2Error> {
     let namespace = format!("/qosrt/{vehicle}");
     let (_context, mut node) = open_node("/qosrt", "fleet_set")?;
     let requests = publisher::<StringMessage>(
@@ -280,22 +355,37 @@ fn ask(
         ("std_msgs", "String"),
         request_qos(),
     )?;
+    // The node's spinner follows the discovery, so the matched peers can be counted.
+    let spinner = node
+        .spinner()
+        .map_err(|e| Ros2Error::Start(format!("{e:?}")))?;
+    std::thread::Builder::new()
+        .name("qosrt-fleet-spin".into())
+        .spawn(move || {
+            let _ = futures::executor::block_on(spinner.spin());
+        })
+        .map_err(Ros2Error::Thread)?;
     // Unique enough among the asks a ground station makes: when, and by which process.
     let id = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(1, |d| d.as_nanos() as u64 ^ u64::from(std::process::id()));
-    let request = StringMessage {
-        data: serde_json::to_string(&PlanRequest {
-            id,
-            reserve_fraction,
-        })
-        .unwrap_or_default(),
+    let message = StringMessage {
+        data: serde_json::to_string(&request(id, changes)).unwrap_or_default(),
     };
     let started = Instant::now();
-    let mut last_send = started - Duration::from_secs(1);
-    while started.elapsed().as_secs_f64() < timeout_s {
+    let deadline = started + Duration::from_secs_f64(timeout_s);
+    while requests.get_subscription_count(&node) == 0 || answers.get_publisher_count(&node) == 0 {
+        if Instant::now() >= deadline {
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let found_s = started.elapsed().as_secs_f64();
+    let asked = Instant::now();
+    let mut last_send = asked - Duration::from_secs(1);
+    while Instant::now() < deadline {
         if last_send.elapsed() >= Duration::from_millis(100) {
-            let _ = requests.publish(request.clone());
+            let _ = requests.publish(message.clone());
             last_send = Instant::now();
         }
         while let Ok(Some((message, _))) = answers.take() {
@@ -303,11 +393,14 @@ fn ask(
                 continue;
             };
             if answer.id == id {
-                // From the first ask: the two sides finding each other included.
-                return Ok(Some((answer, started.elapsed())));
+                return Ok(Some(Asked {
+                    answer,
+                    found_s,
+                    answered_ms: asked.elapsed().as_secs_f64() * 1e3,
+                }));
             }
         }
-        std::thread::sleep(Duration::from_millis(5));
+        std::thread::sleep(Duration::from_millis(1));
     }
     Ok(None)
 }
@@ -317,14 +410,57 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_change_is_a_known_key_and_a_number() {
+    fn a_change_is_a_known_key_and_a_value() {
         assert_eq!(parse_change("reserve=0.3"), Ok(PlanChange::Reserve(0.3)));
+        assert_eq!(
+            parse_change("time_left_s=600"),
+            Ok(PlanChange::TimeLeft(600.0))
+        );
+        assert_eq!(
+            parse_change("hazard=1..3"),
+            Ok(PlanChange::Levels(
+                "hazard".into(),
+                Some(LevelRange { min: 1, max: 3 })
+            ))
+        );
+        assert_eq!(
+            parse_change("hazard=2"),
+            Ok(PlanChange::Levels(
+                "hazard".into(),
+                Some(LevelRange { min: 2, max: 2 })
+            ))
+        );
+        assert_eq!(
+            parse_change("hazard=all"),
+            Ok(PlanChange::Levels("hazard".into(), None))
+        );
         assert!(parse_change("reserve").unwrap_err().contains("KEY=VALUE"));
         assert!(parse_change("reserve=lots")
             .unwrap_err()
             .contains("not a number"));
-        assert!(parse_change("speed=3")
+        assert!(parse_change("hazard=high")
             .unwrap_err()
-            .contains("reserve=FRACTION"));
+            .contains("hazard=MIN..MAX"));
+        assert!(parse_change("=3").unwrap_err().contains("names nothing"));
+    }
+
+    #[test]
+    fn the_changes_of_one_set_go_in_one_request() {
+        let asked = request(
+            7,
+            &[
+                PlanChange::Reserve(0.3),
+                PlanChange::TimeLeft(120.0),
+                PlanChange::Levels("hazard".into(), None),
+            ],
+        );
+        let json = serde_json::to_value(&asked).unwrap();
+        assert_eq!(
+            json,
+            serde_json::json!({
+                "id": 7, "reserve_fraction": 0.3, "time_left_s": 120.0,
+                "levels": {"hazard": null}
+            })
+        );
     }
 }

@@ -306,10 +306,12 @@ fn join_optional_values(args: impl IntoIterator<Item = OsString>) -> Vec<OsStrin
 fn default_log_level(command: &Command) -> &'static str {
     // RustDDS (the ROS 2 node) logs every datagram a network it cannot reach refuses (an IPv6
     // locator on an IPv4-only host) and, as errors, the events it gets after its entities are
-    // gone at the end: noise to a user (RUST_LOG=rustdds=warn shows it).
+    // gone at the end: noise to a user (RUST_LOG=rustdds=warn shows it). ros2-client's node
+    // logs as an error every count of matched peers asked before the first has matched, which
+    // is how `qosrt fleet set` waits for a vehicle.
     match command {
-        Command::Run { dry_run: false, .. } => "info,rustdds=off",
-        _ => "warn,rustdds=off",
+        Command::Run { dry_run: false, .. } => "info,rustdds=off,ros2_client::node=off",
+        _ => "warn,rustdds=off,ros2_client::node=off",
     }
 }
 

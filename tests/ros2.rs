@@ -321,33 +321,35 @@ fn an_independent_ros2_client_receives_what_the_mission_recorded() {
     }
 }
 
-/// The ground station's view: two vehicles flying with `--ros2` are found on the network,
-/// each with its phase and energy margin; one's reserve is changed in flight and the change is
-/// answered and seen in its status, the other's is refused out of range, and a vehicle that is
-/// not there is a named error.
+/// Two simulated vehicles flying with `--ros2` and a ground station's `qosrt fleet`: it sees both,
+/// each with its phase and energy margin. One's reserve is changed in flight; the other's time
+/// left, first too short (refused, saying how much the landing needs), then just that plus a
+/// few seconds with its hazard detector bounded: its tracking ends within seconds and the
+/// bound holds. Meanwhile an independent client sends it malformed CDR and JSON that is not a
+/// request, each answered with why; and a vehicle that is not there is a named error.
 #[test]
-fn the_fleet_sees_every_vehicle_and_changes_one_plan_in_flight() {
+fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
     let names = [1, 2].map(|n| format!("fleet_{}_{n}", std::process::id()));
     let logs = tempfile::tempdir().unwrap();
     let log_of = |name: &str| logs.path().join(format!("{name}.log"));
     // Killed at the end, whether the test passes or panics.
-    struct Vehicles(Vec<std::process::Child>);
-    impl Drop for Vehicles {
+    struct Children(Vec<std::process::Child>);
+    impl Drop for Children {
         fn drop(&mut self) {
-            for vehicle in &mut self.0 {
-                let _ = vehicle.kill();
-                let _ = vehicle.wait();
+            for child in &mut self.0 {
+                let _ = child.kill();
+                let _ = child.wait();
             }
         }
     }
-    let _vehicles = Vehicles(
+    let _vehicles = Children(
         names
             .iter()
             .enumerate()
             .map(|(seed, name)| {
                 Command::new(env!("CARGO_BIN_EXE_qosrt"))
                     .current_dir(repo_root())
-                    .args(["sim", "--tracking-s", "60", "--seed", &seed.to_string()])
+                    .args(["sim", "--tracking-s", "150", "--seed", &seed.to_string()])
                     .arg(format!("--ros2={name}"))
                     .stdout(Stdio::null())
                     .stderr(std::fs::File::create(log_of(name)).unwrap())
@@ -384,6 +386,15 @@ fn the_fleet_sees_every_vehicle_and_changes_one_plan_in_flight() {
             .find(|v| v["vehicle"] == name)
             .cloned()
     };
+    // The bad requests go out while the rest of the test runs.
+    let bad_requests = cyclonedds_python().map(|python| {
+        Command::new(python)
+            .current_dir(repo_root().join("tests/ros2"))
+            .args(["bad_plan_requests.py", &names[1], "60"])
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap()
+    });
     // One view for the whole test, as a ground station keeps it open: its snapshots in order.
     let view_started = std::time::Instant::now();
     let mut view = Command::new(env!("CARGO_BIN_EXE_qosrt"))
@@ -393,7 +404,7 @@ fn the_fleet_sees_every_vehicle_and_changes_one_plan_in_flight() {
             "--period-s",
             "0.2",
             "--duration-s",
-            "150",
+            "180",
         ])
         .stdout(Stdio::piped())
         .spawn()
@@ -440,6 +451,11 @@ fn the_fleet_sees_every_vehicle_and_changes_one_plan_in_flight() {
         answer["levels"]["tasks"]["hazard"]["level"].is_number(),
         "{answer}"
     );
+    eprintln!(
+        "reserve: the vehicle was found in {:.1} s and answered {:.0} ms after the ask",
+        answer["found_s"].as_f64().unwrap(),
+        answer["answered_ms"].as_f64().unwrap()
+    );
     // 15 % more of a pack of some 70 usable Wh kept back: several Wh less left over at the end
     // (less if the governor stepped the levels down to save some of it).
     let margin_after = answer["margin_wh"].as_f64().unwrap();
@@ -458,16 +474,109 @@ fn the_fleet_sees_every_vehicle_and_changes_one_plan_in_flight() {
     );
     let other = ours(&changed, &names[1]).expect("the other vehicle");
     assert_eq!(other["reserve_fraction"], 0.25, "{other}");
+
+    // Tracking: the time left is the tracking's and the landing's.
+    snapshots
+        .find(|snapshot| ours(snapshot, &names[1]).is_some_and(|v| v["phase"] == "tracking"))
+        .expect("the tracking seen");
+    // Too short a time left is refused with what the landing still needs.
+    let refused = fleet(&["set", &names[1], "time_left_s=1", "reserve=0.3"]);
+    assert_eq!(refused.status.code(), Some(3), "{}", output_text(&refused));
+    let text = output_text(&refused);
+    let needed_s: f64 = text
+        .split("still need ")
+        .nth(1)
+        .and_then(|rest| rest.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no time needed in: {text}"));
+    assert!((30.0..200.0).contains(&needed_s), "{text}");
+    // Then that and five seconds, the hazard detector at its two lowest levels: the tracking,
+    // planned for 150 s, ends within seconds.
+    let asked_s = needed_s + 5.0;
+    let set = fleet(&[
+        "set",
+        &names[1],
+        &format!("time_left_s={asked_s}"),
+        "hazard=0..1",
+        "--json",
+    ]);
+    assert!(set.status.success(), "{}", output_text(&set));
+    let answer: Value = serde_json::from_slice(&set.stdout).unwrap();
+    let answered = std::time::Instant::now();
+    assert_eq!(answer["accepted"], true, "{answer}");
+    assert_eq!(
+        answer["reserve_fraction"], 0.25,
+        "refused whole before: {answer}"
+    );
+    // Planned from the moment the request arrived; the answer follows it within the step.
+    let time_left_s = answer["time_left_s"].as_f64().unwrap();
+    assert!(
+        (time_left_s - asked_s).abs() < 1.0,
+        "{time_left_s} s for {asked_s} s: {answer}"
+    );
+    assert_eq!(
+        answer["allowed_levels"]["hazard"],
+        serde_json::json!({"min": 0, "max": 1}),
+        "{answer}"
+    );
+    assert!(
+        answer["levels"]["tasks"]["hazard"]["level"]
+            .as_u64()
+            .unwrap()
+            <= 1,
+        "{answer}"
+    );
+    eprintln!(
+        "time left: answered {:.0} ms after the ask",
+        answer["answered_ms"].as_f64().unwrap()
+    );
+    // The bound holds from a second after the answer (the status's latency) until the
+    // landing, where the hazard detector does not run.
+    let answered_s = answered.duration_since(view_started).as_secs_f64();
+    let landing = snapshots
+        .find(|snapshot| {
+            let vehicle = ours(snapshot, &names[1]).unwrap();
+            let hazard = vehicle["levels"]["hazard"].as_u64();
+            if snapshot["time_s"].as_f64().unwrap() > answered_s + 1.0 {
+                assert!(hazard.is_none_or(|level| level <= 1), "{vehicle}");
+            }
+            vehicle["phase"] == "landing"
+        })
+        .expect("the landing seen");
+    let landing_after_s = landing["time_s"].as_f64().unwrap() - answered_s;
+    assert!(
+        landing_after_s < 12.0,
+        "the landing began {landing_after_s:.1} s after the answer"
+    );
     let _ = view.kill();
     let _ = view.wait();
 
-    let refused = fleet(&["set", &names[1], "reserve=1.5"]);
-    assert_eq!(refused.status.code(), Some(3), "{}", output_text(&refused));
-    assert!(
-        output_text(&refused).contains("[0, 1)"),
-        "{}",
-        output_text(&refused)
-    );
+    if let Some(mut bad_requests) = bad_requests {
+        let answers: Vec<Value> = BufReader::new(bad_requests.stdout.take().unwrap())
+            .lines()
+            .map_while(Result::ok)
+            .map(|line| serde_json::from_str(&line).unwrap())
+            .collect();
+        let _ = bad_requests.wait();
+        let refusals: Vec<&str> = answers
+            .iter()
+            .map(|a| a["refusal"].as_str().unwrap_or_default())
+            .collect();
+        assert_eq!(answers.len(), 3, "{refusals:?}\n{}", said());
+        assert!(answers
+            .iter()
+            .all(|a| a["accepted"] == false && a["id"] == 0));
+        for expected in [
+            "malformed CDR",
+            "expected value at line 1",
+            "unknown field `reserve`",
+        ] {
+            assert!(
+                refusals.iter().any(|r| r.contains(expected)),
+                "{expected}: {refusals:?}"
+            );
+        }
+    }
     let nobody = fleet(&["set", "nobody_here", "reserve=0.3", "--timeout-s", "2"]);
     assert_eq!(nobody.status.code(), Some(4), "{}", output_text(&nobody));
     assert!(output_text(&nobody).contains("no answer from `nobody_here`"));

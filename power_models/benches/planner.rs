@@ -53,6 +53,7 @@ fn mission(task_count: usize, seed: u64) -> PlanProblem {
                     })
                     .collect(),
                 weight: rng.random_range(0.5..2.0),
+                allowed_levels: None,
             }
         })
         .collect();

@@ -76,6 +76,31 @@ pub struct PlanTask {
     pub utility: Vec<f64>,
     /// Importance of the task, ≥ 0.
     pub weight: f64,
+    /// The levels the planner may choose (all of them when `None`): an operator's bounds,
+    /// e.g. a hazard detector that must not drop below level 1.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub allowed_levels: Option<LevelRange>,
+}
+
+/// Levels `min..=max` of a task, 0 = lowest QoS.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LevelRange {
+    pub min: usize,
+    pub max: usize,
+}
+
+impl LevelRange {
+    pub fn contains(&self, level: usize) -> bool {
+        (self.min..=self.max).contains(&level)
+    }
+}
+
+impl PlanTask {
+    /// Whether the planner may choose `level` for this task.
+    pub fn allows(&self, level: usize) -> bool {
+        self.allowed_levels
+            .is_none_or(|range| range.contains(level))
+    }
 }
 
 /// Companion-computer power of a set of coupled tasks, from a joint power model.
@@ -234,6 +259,13 @@ pub enum PlanError {
     },
     #[error("the problem's {what} overflows a 64-bit float; scale its values down")]
     Overflow { what: &'static str },
+    #[error("task `{task}`: allowed levels {min}..={max} are not within its {count} levels (0..={last})", last = count.saturating_sub(1))]
+    BadLevelRange {
+        task: String,
+        min: usize,
+        max: usize,
+        count: usize,
+    },
     #[error("energy budget {value} Wh is not a finite number")]
     BadBudget { value: f64 },
 }

@@ -264,6 +264,7 @@ impl MissionModel {
                 name: task.name.clone(),
                 utility: task.utility.clone(),
                 weight: task.weight,
+                allowed_levels: None,
             })
             .collect();
         let phases = config

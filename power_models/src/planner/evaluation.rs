@@ -133,6 +133,7 @@ mod tests {
             name: name.into(),
             utility: utility.to_vec(),
             weight,
+            allowed_levels: None,
         };
         PlanProblem {
             tasks: vec![

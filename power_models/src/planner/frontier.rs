@@ -6,8 +6,8 @@ use std::collections::BinaryHeap;
 
 use super::validate::validate;
 use super::{
-    PhasePlan, PlanError, PlanPhase, PlanProblem, PowerTerm, TaskLevel, SECONDS_PER_HOUR,
-    TIE_TOLERANCE,
+    LevelRange, PhasePlan, PlanError, PlanPhase, PlanProblem, PlanTask, PowerTerm, TaskLevel,
+    SECONDS_PER_HOUR, TIE_TOLERANCE,
 };
 
 /// A frontier point with a back-pointer pair, whose meaning depends on the frontier it is in.
@@ -145,7 +145,7 @@ fn build_phase(problem: &PlanProblem, phase: &PlanPhase, tolerance: f64) -> Phas
         .filter(|t| !in_term.contains(t) && duration_task != Some(**t))
         .map(|&task| TaskLevel {
             task,
-            level: best_level(&problem.tasks[task].utility),
+            level: best_level(&problem.tasks[task]),
         })
         .collect();
     let free_utility: f64 = free
@@ -160,6 +160,7 @@ fn build_phase(problem: &PlanProblem, phase: &PlanPhase, tolerance: f64) -> Phas
             .duration_s
             .iter()
             .enumerate()
+            .filter(|(level, _)| problem.tasks[by_level.task].allows(*level))
             .map(|(level, &d)| (Some(level), d))
             .collect(),
     };
@@ -244,6 +245,14 @@ fn term_frontier(
         .enumerate()
         .filter_map(|(combo, &power_w)| {
             let levels = term.levels_at(&problem.tasks, combo);
+            let allowed = term
+                .tasks
+                .iter()
+                .zip(&levels)
+                .all(|(&task, &level)| problem.tasks[task].allows(level));
+            if !allowed {
+                return None;
+            }
             if let Some((slot, level)) = pinned {
                 if levels[slot] != level {
                     return None;
@@ -270,11 +279,15 @@ fn weighted_utility(problem: &PlanProblem, task: usize, level: usize) -> f64 {
     problem.tasks[task].weight * problem.tasks[task].utility[level]
 }
 
-/// The level with the highest utility; on a tie the higher level (the higher QoS).
-fn best_level(utility: &[f64]) -> usize {
-    let mut best = 0;
-    for (level, &u) in utility.iter().enumerate() {
-        if u >= utility[best] {
+/// The allowed level with the highest utility; on a tie the higher level (the higher QoS).
+fn best_level(task: &PlanTask) -> usize {
+    let range = task.allowed_levels.unwrap_or(LevelRange {
+        min: 0,
+        max: task.utility.len() - 1,
+    });
+    let mut best = range.min;
+    for level in range.min..=range.max {
+        if task.utility[level] >= task.utility[best] {
             best = level;
         }
     }

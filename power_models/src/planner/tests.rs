@@ -8,6 +8,7 @@ fn task(name: &str, utility: &[f64], weight: f64) -> PlanTask {
         name: name.to_string(),
         utility: utility.to_vec(),
         weight,
+        allowed_levels: None,
     }
 }
 
@@ -89,7 +90,15 @@ fn brute_force(problem: &PlanProblem) -> Vec<(f64, f64)> {
     let mut levels = vec![vec![0; problem.tasks.len()]; problem.phases.len()];
     let mut out = Vec::new();
     loop {
-        out.push(evaluate(problem, &levels));
+        let allowed = slots
+            .iter()
+            .all(|&(p, t)| match problem.tasks[t].allowed_levels {
+                Some(range) => (range.min..=range.max).contains(&levels[p][t]),
+                None => true,
+            });
+        if allowed {
+            out.push(evaluate(problem, &levels));
+        }
         // Odometer step.
         let mut i = 0;
         loop {
@@ -152,6 +161,7 @@ fn random_problem(rng: &mut StdRng) -> PlanProblem {
                     name: format!("task{i}"),
                     utility,
                     weight,
+                    allowed_levels: None,
                 }
             })
             .collect();
@@ -253,6 +263,79 @@ fn utility_scale(problem: &PlanProblem) -> f64 {
 
 fn close(a: f64, b: f64, scale: f64) -> bool {
     (a - b).abs() <= 1e-9 * scale.max(1.0)
+}
+
+#[test]
+fn bounded_levels_are_the_only_ones_chosen_and_the_best_among_them() {
+    let mut rng = StdRng::seed_from_u64(0x5eed_0042);
+    let mut narrowed = 0;
+    for _ in 0..300 {
+        let mut problem = random_problem(&mut rng);
+        for task in &mut problem.tasks {
+            let count = task.utility.len();
+            if count > 1 && rng.random_bool(0.6) {
+                let min = rng.random_range(0..count);
+                let max = rng.random_range(min..count);
+                task.allowed_levels = Some(LevelRange { min, max });
+                narrowed += usize::from(max - min + 1 < count);
+            }
+        }
+        let combos = brute_force(&problem);
+        let scale = utility_scale(&problem);
+        let min_e = combos.iter().map(|c| c.0).fold(f64::INFINITY, f64::min);
+        let max_e = combos.iter().map(|c| c.0).fold(0.0, f64::max);
+        for budget_wh in [
+            min_e - 1.0,
+            rng.random_range(min_e..=max_e) * (1.0 + 1e-9),
+            max_e + 1.0,
+        ] {
+            let plan = solve(&problem, budget_wh).unwrap();
+            assert!(close(plan.min_energy_wh, min_e, min_e), "cheapest allowed");
+            for phase in &plan.phases {
+                for level in &phase.levels {
+                    assert!(
+                        problem.tasks[level.task].allows(level.level),
+                        "task {} at level {} outside {:?}",
+                        level.task,
+                        level.level,
+                        problem.tasks[level.task].allowed_levels
+                    );
+                }
+            }
+            let best = combos
+                .iter()
+                .filter(|c| c.0 <= budget_wh)
+                .map(|c| c.1)
+                .fold(f64::NEG_INFINITY, f64::max);
+            assert_eq!(plan.feasible, best > f64::NEG_INFINITY);
+            if plan.feasible {
+                assert!(
+                    close(plan.utility, best, scale),
+                    "{} vs {best}",
+                    plan.utility
+                );
+            }
+        }
+    }
+    assert!(narrowed > 100, "{narrowed} tasks narrowed");
+}
+
+#[test]
+fn allowed_levels_outside_a_task_are_named() {
+    let mut problem = random_problem(&mut StdRng::seed_from_u64(3));
+    let count = problem.tasks[0].utility.len();
+    problem.tasks[0].allowed_levels = Some(LevelRange { min: 0, max: count });
+    let error = solve(&problem, 100.0).unwrap_err();
+    assert!(matches!(error, PlanError::BadLevelRange { .. }), "{error}");
+    assert!(
+        error.to_string().contains(&format!("0..={}", count - 1)),
+        "{error}"
+    );
+    problem.tasks[0].allowed_levels = Some(LevelRange { min: 1, max: 0 });
+    assert!(matches!(
+        solve(&problem, 100.0),
+        Err(PlanError::BadLevelRange { .. })
+    ));
 }
 
 #[test]

@@ -38,6 +38,16 @@ fn validate_tasks(problem: &PlanProblem) -> Result<(), PlanError> {
                 });
             }
         }
+        if let Some(range) = task.allowed_levels {
+            if range.min > range.max || range.max >= task.utility.len() {
+                return Err(PlanError::BadLevelRange {
+                    task: task.name.clone(),
+                    min: range.min,
+                    max: range.max,
+                    count: task.utility.len(),
+                });
+            }
+        }
         if !(task.weight.is_finite() && task.weight >= 0.0) {
             return Err(PlanError::BadWeight {
                 task: task.name.clone(),

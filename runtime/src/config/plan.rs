@@ -108,6 +108,20 @@ impl MissionPlan {
         })
     }
 
+    /// Whether phase `index` ends after its duration: a tracking phase, and in observe mode
+    /// (which follows the flight without steering it) every phase but the landing.
+    pub fn ends_by_duration(&self, index: usize) -> bool {
+        if !self.control && self.only_phase.is_some() {
+            // Observing one phase: it lasts as long as the flight.
+            return false;
+        }
+        match self.kind(index) {
+            Some(PhaseKind::Track) => true,
+            Some(PhaseKind::Transit) => !self.control,
+            _ => false,
+        }
+    }
+
     /// The landing phase: the last, where the config's kinds are valid.
     pub fn landing_phase(&self) -> Option<usize> {
         (0..self.phase_names.len()).rfind(|&index| self.kind(index) == Some(PhaseKind::Land))

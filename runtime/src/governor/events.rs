@@ -18,8 +18,8 @@ pub enum ReplanTrigger {
     Periodic,
     /// The measured remaining energy fell `divergence_wh` below the prediction.
     DrainFaster { divergence_wh: f64 },
-    /// The reserve was changed in flight (a ground station's plan change).
-    ReserveChanged,
+    /// The plan was changed in flight (a ground station's reserve, time left or levels).
+    PlanChanged,
 }
 
 impl fmt::Display for ReplanTrigger {
@@ -28,7 +28,7 @@ impl fmt::Display for ReplanTrigger {
             ReplanTrigger::Start => f.write_str("start"),
             ReplanTrigger::PhaseStarted => f.write_str("phase started"),
             ReplanTrigger::Periodic => f.write_str("periodic"),
-            ReplanTrigger::ReserveChanged => f.write_str("the reserve was changed in flight"),
+            ReplanTrigger::PlanChanged => f.write_str("the plan was changed in flight"),
             ReplanTrigger::DrainFaster { divergence_wh } => {
                 write!(
                     f,
@@ -49,6 +49,8 @@ pub enum ChangeReason {
     MoreEnergyAvailable,
     /// Nothing fits: the cheapest levels, with a land-now event.
     LandNow,
+    /// The levels in force are outside a task's allowed levels (changed in flight).
+    LevelsNotAllowed,
 }
 
 impl fmt::Display for ChangeReason {
@@ -57,6 +59,7 @@ impl fmt::Display for ChangeReason {
             ChangeReason::CurrentLevelsDoNotFit => "the levels in force no longer fit the budget",
             ChangeReason::MoreEnergyAvailable => "a better plan fits with the margin",
             ChangeReason::LandNow => "even the lowest levels do not fit: land now",
+            ChangeReason::LevelsNotAllowed => "a task's levels in force are no longer allowed",
         })
     }
 }

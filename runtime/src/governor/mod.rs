@@ -68,11 +68,13 @@ use power_models::battery::{BatteryError, BatteryEstimator};
 use power_models::planner::{level_of, solve, Plan, PlanError, PlanProblem, TaskLevel};
 use thiserror::Error;
 
+mod change;
 mod decision;
 mod events;
 mod replan;
 
 pub use crate::config::{BadGovernorConfig, GovernorConfig};
+pub use change::{PlanChange, PlanChangeError};
 pub use decision::{GovernorDecision, LevelMove};
 pub use events::{
     ChangeReason, Decision, GovernorEvent, LandNow, LevelChange, ReplanSummary, ReplanTrigger,
@@ -293,26 +295,6 @@ impl Governor {
         }
         self.problem = problem;
         Ok(())
-    }
-
-    /// Keeps `reserve_fraction` of the full pack's usable energy from now on, and re-plans at
-    /// once with it (from the last battery reading; before the first, the first re-plan uses
-    /// it). A reserve outside 0..1 is refused and changes nothing.
-    pub fn change_reserve(
-        &mut self,
-        reserve_fraction: f64,
-    ) -> Result<Vec<GovernorEvent>, GovernorError> {
-        if !(0.0..1.0).contains(&reserve_fraction) {
-            return Err(GovernorError::BadReserve {
-                value: reserve_fraction,
-            });
-        }
-        self.reserve_wh = self.usable_full_wh * reserve_fraction;
-        let mut events = Vec::new();
-        if let (Some(time_s), false) = (self.last_time_s, self.land_now) {
-            self.replan(ReplanTrigger::ReserveChanged, time_s, &mut events);
-        }
-        Ok(events)
     }
 
     /// The reserve, as a fraction of the full pack's usable energy.

@@ -34,10 +34,10 @@ pub enum ReplanError {
 }
 
 /// A plan that fits its own budget.
-struct Candidate {
+pub(super) struct Candidate {
     levels: Vec<Vec<TaskLevel>>,
-    evaluation: Evaluation,
-    available_wh: f64,
+    pub(super) evaluation: Evaluation,
+    pub(super) available_wh: f64,
 }
 
 impl Governor {
@@ -201,7 +201,16 @@ impl Governor {
         }
         let with_margin = self.best_fitting(&problem, margin_wh, rating_power_w)?;
         let tolerance = UTILITY_TOLERANCE * current.utility.abs().max(1.0);
-        let change = if current.energy_wh > available_wh {
+        let change = if !self.levels_in_force_allowed(&current_levels) {
+            // An operator narrowed a task's levels: the best plan within them, now.
+            self.switch_down(&problem, with_margin, rating_power_w, &summary, events)?
+                .map(|(candidate, reason)| match reason {
+                    ChangeReason::CurrentLevelsDoNotFit => {
+                        (candidate, ChangeReason::LevelsNotAllowed)
+                    }
+                    other => (candidate, other),
+                })
+        } else if current.energy_wh > available_wh {
             // Safety first: down now, whatever the dwell.
             self.switch_down(&problem, with_margin, rating_power_w, &summary, events)?
         } else {
@@ -349,7 +358,11 @@ impl Governor {
     }
 
     /// The cheapest levels and the budget at their mean power.
-    fn cheapest(&self, problem: &PlanProblem, fallback_w: f64) -> Result<Candidate, ReplanError> {
+    pub(super) fn cheapest(
+        &self,
+        problem: &PlanProblem,
+        fallback_w: f64,
+    ) -> Result<Candidate, ReplanError> {
         let plan = solve(problem, f64::MIN)?;
         let levels: Vec<Vec<TaskLevel>> = plan.phases.iter().map(|p| p.levels.clone()).collect();
         let evaluation = problem

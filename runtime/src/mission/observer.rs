@@ -8,6 +8,7 @@ use crate::scheduler::TaskStats;
 use crate::telemetry::BatteryTelemetry;
 use crate::topics::VehicleState;
 use nalgebra::Vector3;
+use power_models::planner::LevelRange;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -63,14 +64,24 @@ pub struct PlannedPhase {
     pub levels: BTreeMap<String, usize>,
 }
 
-/// A change to the plan asked for in flight (`qosrt fleet set VEHICLE reserve=0.3`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// A change to the plan asked for in flight (`qosrt fleet set VEHICLE reserve=0.3
+/// time_left_s=600 hazard=1..3`). Fields left out stay as they are; the change is applied whole
+/// or refused whole.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlanRequest {
     /// The asker's number for it, given back in the answer.
     pub id: u64,
     /// The reserve to keep, a fraction of the full pack's usable energy (0 ≤ r < 1).
-    pub reserve_fraction: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reserve_fraction: Option<f64>,
+    /// How long the rest of the mission lasts from now (s): the phases that end after their
+    /// duration (tracking) take the time the others (transit, landing) leave.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_left_s: Option<f64>,
+    /// Per task, the levels the governor may choose from now on (`null`: all of them).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub levels: BTreeMap<String, Option<LevelRange>>,
 }
 
 /// The mission's answer to a [`PlanRequest`]: the plan in force after it.
@@ -78,7 +89,7 @@ pub struct PlanRequest {
 pub struct PlanAnswer {
     pub id: u64,
     pub accepted: bool,
-    /// Why not, when refused (out of range, not a request).
+    /// Why not, when refused (out of range, infeasible, not a request).
     pub refusal: Option<String>,
     pub reserve_fraction: f64,
     /// The energy left over the reserve at the end of the mission, by the re-plan (its energy
@@ -88,6 +99,12 @@ pub struct PlanAnswer {
     pub land_now: bool,
     /// Every task's level now.
     pub levels: QosLevels,
+    /// The rest of the mission's planned time, at the levels in force (s).
+    #[serde(default)]
+    pub time_left_s: Option<f64>,
+    /// The tasks whose levels are bounded, with their bounds.
+    #[serde(default)]
+    pub allowed_levels: BTreeMap<String, LevelRange>,
 }
 
 /// The mission at a glance, once a second: what a fleet's ground station shows of a vehicle.

@@ -8,9 +8,7 @@
 //! harness in lockstep with its world on a [`VirtualScheduler`](crate::scheduler::VirtualScheduler).
 
 use super::input_rates::InputRateMeter;
-use super::observer::{
-    MissionObserver, PlanAnswer, PlanForecast, PlanRequest, PlannedPhase, VehicleStatus,
-};
+use super::observer::{MissionObserver, PlanForecast, PlannedPhase, VehicleStatus};
 use super::report::MissionLog;
 use super::sequencer::{
     AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, PhaseKind,
@@ -28,7 +26,6 @@ use crate::record::channels::StepRecord;
 use crate::record::recorder::{BatteryEstimate, QosLevels, TaskLevelRecord};
 use crate::record::{RecordError, Recorder, RecordingSummary};
 use crate::scheduler::{PhaseGate, SchedulerError, TaskId, TaskScheduler};
-use crate::telemetry::MissionProgress;
 use crate::topics::{
     CameraFrame, LandingSetpoint, MissionPhase, RelativeState, VehicleState, CAMERA_FRAME,
     LANDING_SETPOINT, MISSION_PHASE, RELATIVE_STATE, VEHICLE_STATE,
@@ -37,6 +34,8 @@ use algorithms::estimation::attitude_history::{AttitudeHistory, AttitudeSample};
 use power_models::planner::TaskLevel;
 use std::sync::Arc;
 use std::time::Duration;
+
+mod plan_change;
 
 /// The telemetry the loop flies on, with the rate it asks the autopilot for (MAVLink message
 /// id, Hz): PX4 sends BATTERY_STATUS at 0.5 Hz on its onboard link, ArduPilot nothing at all
@@ -600,10 +599,7 @@ impl<S: TaskScheduler> MissionRunner<S> {
             );
         }
         self.reprice_at_measured_input_rates(now_s)?;
-        let status = self.sequencer.status();
-        let progress = status.phase.map_or(MissionProgress::start(), |p| {
-            MissionProgress::new(p, now_s - status.phase_started_s)
-        });
+        let progress = self.progress_at(now_s);
         match self.governor.update(&sample, progress) {
             Ok(decisions) => self.take_decisions(now_s, decisions)?,
             Err(error) => {
@@ -637,51 +633,6 @@ impl<S: TaskScheduler> MissionRunner<S> {
             self.log.governor(decision);
         }
         self.apply_levels()
-    }
-
-    /// The plan changes the observers were asked for (a ground station's), each applied and
-    /// answered: the governor re-plans at once, or the change is refused by name.
-    fn take_plan_requests(&mut self, now_s: f64) -> Result<(), RunnerError> {
-        let requests: Vec<PlanRequest> = self
-            .observers
-            .iter()
-            .flat_map(|o| o.plan_requests())
-            .collect();
-        for request in requests {
-            let outcome = self.governor.change_reserve(request.reserve_fraction);
-            let refusal = match outcome {
-                Ok(decisions) => {
-                    self.note(
-                        now_s,
-                        format!(
-                            "reserve changed to {:.2} in flight",
-                            request.reserve_fraction
-                        ),
-                    );
-                    self.take_decisions(now_s, decisions)?;
-                    None
-                }
-                Err(error) => Some(error.to_string()),
-            };
-            let answer = PlanAnswer {
-                id: request.id,
-                accepted: refusal.is_none(),
-                refusal,
-                reserve_fraction: self.governor.reserve_fraction(),
-                margin_wh: self
-                    .governor
-                    .last_replan()
-                    .map(ReplanSummary::end_margin_wh),
-                land_now: self.governor.land_now_raised(),
-                levels: self.named_levels(&self.with_fixed(self.governor.current_levels())),
-            };
-            for observer in &self.observers {
-                observer.plan_answer(&answer);
-            }
-            // The status shows the change at once, not at its next second.
-            self.observed_tasks = None;
-        }
-        Ok(())
     }
 
     /// The mission at a glance, for the observers (a fleet's ground station).

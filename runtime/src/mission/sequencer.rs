@@ -211,6 +211,16 @@ impl MissionSequencer {
         &self.plan
     }
 
+    /// New durations for phases (index, seconds from the phase's start): the time left changed
+    /// in flight. A phase flying past its new duration ends at the next step.
+    pub fn set_phase_durations(&mut self, durations_s: &[(usize, f64)]) {
+        for &(phase, duration_s) in durations_s {
+            if let Some(slot) = self.plan.phase_durations_s.get_mut(phase) {
+                *slot = duration_s;
+            }
+        }
+    }
+
     /// One step: the commands to send now, and what happened.
     pub fn step(&mut self, input: &SequencerInput) -> (Vec<VehicleCommand>, Vec<MissionEvent>) {
         let mut commands = Vec::new();

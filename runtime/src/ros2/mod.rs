@@ -452,12 +452,22 @@ impl Publishers {
         }
     }
 
-    /// The plan changes received since the last look; one that is not a request is answered
-    /// with why (its id 0), and the mission goes on.
+    /// The plan changes received since the last look; one that is not a request (malformed
+    /// CDR, or JSON that is not a [`PlanRequest`]) is answered with why (its id 0, as it has
+    /// none that can be read), and the mission goes on.
     fn take_requests(&mut self) -> Vec<PlanRequest> {
         let mut requests = Vec::new();
-        while let Ok(Some((message, _))) = self.plan_requests.take() {
-            match serde_json::from_str::<PlanRequest>(&message.data) {
+        loop {
+            let data = match self.plan_requests.take() {
+                Ok(Some((message, _))) => message.data,
+                Ok(None) => break,
+                // RustDDS has taken the sample that failed: the next one follows.
+                Err(error) => {
+                    self.refuse(format!("not a std_msgs/String (malformed CDR: {error:?})"));
+                    continue;
+                }
+            };
+            match serde_json::from_str::<PlanRequest>(&data) {
                 Ok(request) => match self.answers.get(&request.id) {
                     None => {
                         self.answers.insert(request.id, None);
@@ -471,22 +481,27 @@ impl Publishers {
                     // Taken, not yet answered: the answer is on its way.
                     Some(None) => {}
                 },
-                Err(error) => {
-                    tracing::warn!(%error, "a plan request that is not one was refused");
-                    let refusal = PlanRefusal {
-                        id: 0,
-                        accepted: false,
-                        refusal: format!(
-                            "not a plan request ({error}): expected {{\"id\": N, \"reserve_fraction\": F}}"
-                        ),
-                    };
-                    let _ = self.plan_answers.publish(StringMessage {
-                        data: json(&refusal),
-                    });
-                }
+                Err(error) => self.refuse(format!(
+                    "not a plan request ({error}): expected {{\"id\": N, \"reserve_fraction\": F, \
+                     \"time_left_s\": S, \"levels\": {{\"TASK\": {{\"min\": A, \"max\": B}}}}}} \
+                     (each change optional)"
+                )),
             }
         }
         requests
+    }
+
+    /// Answers something that is not a plan request with why.
+    fn refuse(&mut self, refusal: String) {
+        tracing::warn!(%refusal, "a plan request was refused");
+        let answer = PlanRefusal {
+            id: 0,
+            accepted: false,
+            refusal,
+        };
+        let _ = self.plan_answers.publish(StringMessage {
+            data: json(&answer),
+        });
     }
 
     fn publish(&mut self, update: Update) {

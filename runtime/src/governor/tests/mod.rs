@@ -7,6 +7,7 @@ use power_models::planner::{DurationByLevel, PlanPhase, PlanTask, PowerTerm};
 use std::fmt;
 use std::path::Path;
 
+mod change;
 mod planning;
 mod scenarios;
 mod telemetry;
@@ -44,6 +45,7 @@ fn survey_problem() -> PlanProblem {
         name: name.into(),
         utility: utility.to_vec(),
         weight,
+        allowed_levels: None,
     };
     let cnn_w = [2.0, 8.0, 18.0, 30.0];
     let detector_w = [1.0, 3.0, 6.0, 10.0];
