@@ -4,7 +4,7 @@
 //! run recorded for the same instant.
 
 mod common;
-use common::{output_text, repo_root};
+use common::{output_text, repo_root, short_mission, Px4};
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
@@ -658,4 +658,126 @@ fn a_ros2_image_topic_is_a_camera() {
         delays_ms.len()
     );
     assert!(delays_ms[0] >= 0.0 && p99 <= 5.0, "{delays_ms:?}");
+}
+
+/// Three real PX4 autopilots (SITL, SIH), each flown by its own `qosrt run --control --ros2`, as
+/// a farm's three drones: `qosrt fleet --json` sees all three with their phases and margins,
+/// and one's reserve changed in flight by `qosrt fleet set` shows in the view while the other
+/// two keep theirs.
+#[test]
+fn the_fleet_sees_three_px4_vehicles_and_changes_one_in_flight() {
+    let Some(first) = Px4::start(7) else { return };
+    let autopilots: Vec<Px4> = std::iter::once(first)
+        .chain([8, 9].map(|i| Px4::start(i).expect("the PX4 SITL that started instance 7")))
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let config = short_mission(dir.path(), 120.0);
+    let names: Vec<String> = autopilots
+        .iter()
+        .map(|px4| format!("px4_{}_{}", std::process::id(), px4.instance))
+        .collect();
+    struct Children(Vec<std::process::Child>);
+    impl Drop for Children {
+        fn drop(&mut self) {
+            for child in &mut self.0 {
+                let _ = child.kill();
+                let _ = child.wait();
+            }
+        }
+    }
+    let logs: Vec<PathBuf> = names
+        .iter()
+        .map(|name| dir.path().join(format!("{name}.log")))
+        .collect();
+    let _runs = Children(
+        autopilots
+            .iter()
+            .zip(&names)
+            .zip(&logs)
+            .map(|((px4, name), log)| {
+                Command::new(env!("CARGO_BIN_EXE_qosrt"))
+                    .current_dir(repo_root())
+                    .arg("run")
+                    .arg(&config)
+                    .args(["--mavlink", &px4.mavlink(), "--control"])
+                    .args(["--meeting-point-ne-m", "5,0", "--duration-s", "200"])
+                    .arg(format!("--ros2={name}"))
+                    .stdout(Stdio::null())
+                    .stderr(std::fs::File::create(log).unwrap())
+                    .spawn()
+                    .unwrap()
+            })
+            .collect(),
+    );
+    let said = || {
+        logs.iter()
+            .map(|log| std::fs::read_to_string(log).unwrap_or_default())
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    let mut view = Command::new(env!("CARGO_BIN_EXE_qosrt"))
+        .args([
+            "fleet",
+            "--json",
+            "--period-s",
+            "0.2",
+            "--duration-s",
+            "150",
+        ])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut snapshots = BufReader::new(view.stdout.take().unwrap())
+        .lines()
+        .map_while(Result::ok)
+        .map(|line| serde_json::from_str::<Value>(&line).unwrap());
+    let ours = |snapshot: &Value, name: &str| {
+        snapshot["vehicles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|v| v["vehicle"] == name)
+            .cloned()
+    };
+    // All three flying a phase, each with the margin of its governor's first re-plan (after
+    // its 30 s warm-up on PX4's battery telemetry).
+    let all_seen = snapshots
+        .find(|snapshot| {
+            names.iter().all(|name| {
+                ours(snapshot, name)
+                    .is_some_and(|v| v["margin_wh"].is_number() && v["phase"].is_string())
+            })
+        })
+        .unwrap_or_else(|| panic!("not all three seen with a margin; they said:\n{}", said()));
+    for name in &names {
+        let vehicle = ours(&all_seen, name).unwrap();
+        assert!(
+            vehicle["battery_fraction"].as_f64().unwrap() > 0.5,
+            "{vehicle}"
+        );
+        assert_eq!(vehicle["reserve_fraction"], 0.25, "{vehicle}");
+    }
+    let set = Command::new(env!("CARGO_BIN_EXE_qosrt"))
+        .args(["fleet", "set", &names[1], "reserve=0.35", "--json"])
+        .output()
+        .unwrap();
+    assert!(set.status.success(), "{}", output_text(&set));
+    let answer: Value = serde_json::from_slice(&set.stdout).unwrap();
+    assert_eq!(answer["accepted"], true, "{answer}");
+    eprintln!(
+        "three PX4: {} found in {:.1} s, answered {:.0} ms after the ask",
+        names[1],
+        answer["found_s"].as_f64().unwrap(),
+        answer["answered_ms"].as_f64().unwrap()
+    );
+    let changed = snapshots
+        .find(|snapshot| ours(snapshot, &names[1]).is_some_and(|v| v["reserve_fraction"] == 0.35))
+        .unwrap_or_else(|| panic!("the change not seen; they said:\n{}", said()));
+    for name in [&names[0], &names[2]] {
+        let vehicle = ours(&changed, name).expect("still seen");
+        assert_eq!(vehicle["reserve_fraction"], 0.25, "{vehicle}");
+        assert!(vehicle["link_age_s"].as_f64().unwrap() < 1.5, "{vehicle}");
+    }
+    let _ = view.kill();
+    let _ = view.wait();
 }
