@@ -143,3 +143,42 @@ pub fn record_short_mission(file: &std::path::Path, extra: &[&str]) -> std::proc
     assert!(sim.status.success(), "{}", output_text(&sim));
     sim
 }
+
+/// A Python with Cyclone DDS's binding, installed once under `target/`; `None`, said, where it
+/// cannot be installed (no network to PyPI, no Python).
+pub fn cyclonedds_python() -> Option<PathBuf> {
+    let venv = repo_root().join("target/ros2-test-venv");
+    let python = venv.join("bin/python");
+    let has_binding = |python: &PathBuf| {
+        Command::new(python)
+            .args(["-c", "import cyclonedds.domain"])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    if has_binding(&python) {
+        return Some(python);
+    }
+    let steps: [&[&str]; 2] = [
+        &["python3", "-m", "venv", venv.to_str().unwrap()],
+        &[
+            python.to_str().unwrap(),
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "cyclonedds==11.0.1",
+        ],
+    ];
+    for step in steps {
+        let status = Command::new(step[0]).args(&step[1..]).output();
+        if !status.as_ref().is_ok_and(|o| o.status.success()) {
+            eprintln!(
+                "skipped: cannot install Cyclone DDS's Python binding ({}): {:?}",
+                step.join(" "),
+                status.map(|o| String::from_utf8_lossy(&o.stderr).into_owned())
+            );
+            return None;
+        }
+    }
+    has_binding(&python).then_some(python)
+}

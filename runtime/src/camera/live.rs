@@ -34,6 +34,7 @@ pub struct LiveQueue<E> {
     capacity: usize,
     received: u64,
     dropped: u64,
+    lost_in_transport: u64,
     sender_stamps_refused: u64,
     /// Unparked at each frame (the runtime's loop, so it takes the frame at once).
     waker: Option<std::thread::Thread>,
@@ -47,6 +48,7 @@ impl<E> LiveQueue<E> {
             capacity: capacity.max(1),
             received: 0,
             dropped: 0,
+            lost_in_transport: 0,
             sender_stamps_refused: 0,
             waker: None,
         }))
@@ -80,6 +82,11 @@ impl<E> LiveQueue<E> {
         }
     }
 
+    /// Frames the sender published that never reached the reading thread.
+    pub fn note_lost(&mut self, frames: u64) {
+        self.lost_in_transport += frames;
+    }
+
     pub fn pop(&mut self) -> Option<Arrived<E>> {
         self.frames.pop_front()
     }
@@ -92,6 +99,7 @@ impl<E> LiveQueue<E> {
     pub fn counted(&self, stats: CameraStats) -> CameraStats {
         CameraStats {
             dropped: self.dropped,
+            lost_in_transport: self.lost_in_transport,
             sender_stamps_refused: self.sender_stamps_refused,
             ..stats
         }

@@ -105,6 +105,9 @@ pub struct CameraStats {
     pub malformed: u64,
     /// Times the source fell silent for longer than its stall bound.
     pub stalls: u64,
+    /// Frames the sender published that never arrived whole (gaps in a DDS writer's sequence
+    /// numbers): lost on the way, before the source could queue them.
+    pub lost_in_transport: u64,
     /// Frames delivered stamped with the sender's own capture time (RTP's NTP-64 header
     /// extension, RTCP); counted as delivered, so a frame still queued at the end is in neither.
     pub sender_stamped: u64,
