@@ -2,7 +2,6 @@
 //! the fleet's status topic (no list of vehicles to keep), and `qosrt fleet set` to change a
 //! vehicle's plan in flight.
 
-use power_models::planner::LevelRange;
 use runtime::mission::{PlanAnswer, PlanRequest};
 use runtime::ros2::messages::StringMessage;
 use runtime::ros2::{
@@ -47,7 +46,7 @@ pub enum FleetAction {
     Set {
         vehicle: String,
         #[arg(value_name = "KEY=VALUE", required = true, value_parser = parse_change)]
-        changes: Vec<PlanChange>,
+        changes: Vec<String>,
         /// How long to wait for the answer (finding the vehicle on the network takes up to
         /// RustDDS's 10 s announcement period).
         #[arg(long, value_name = "S", default_value_t = 25.0)]
@@ -58,63 +57,21 @@ pub enum FleetAction {
     },
 }
 
-/// One change `qosrt fleet set` can ask for.
-#[derive(Debug, Clone, PartialEq)]
-pub enum PlanChange {
-    Reserve(f64),
-    TimeLeft(f64),
-    Levels(String, Option<LevelRange>),
-}
-
-const CHANGE_KEYS: &str = "reserve=FRACTION, time_left_s=SECONDS or TASK=MIN..MAX|N|all";
-
-fn parse_change(text: &str) -> Result<PlanChange, String> {
-    let (key, value) = text
-        .split_once('=')
-        .map(|(k, v)| (k.trim(), v.trim()))
-        .ok_or_else(|| format!("expected KEY=VALUE ({CHANGE_KEYS}), found `{text}`"))?;
-    let number = |value: &str| {
-        value
-            .parse::<f64>()
-            .map_err(|_| format!("`{value}` is not a number; expected {key}=NUMBER"))
-    };
-    let level = |value: &str| {
-        value.parse::<usize>().map_err(|_| {
-            format!("`{value}` is not a level; expected {key}=MIN..MAX, {key}=N or {key}=all")
-        })
-    };
-    match key {
-        "reserve" => Ok(PlanChange::Reserve(number(value)?)),
-        "time_left_s" => Ok(PlanChange::TimeLeft(number(value)?)),
-        "" => Err(format!("`{text}` names nothing; expected {CHANGE_KEYS}")),
-        task if value == "all" => Ok(PlanChange::Levels(task.into(), None)),
-        task => {
-            let (min, max) = match value.split_once("..") {
-                Some((min, max)) => (level(min)?, level(max.trim_start_matches('='))?),
-                None => (level(value)?, level(value)?),
-            };
-            Ok(PlanChange::Levels(
-                task.into(),
-                Some(LevelRange { min, max }),
-            ))
-        }
-    }
+/// One change `qosrt fleet set` asks for, as written (`reserve=0.3`), checked.
+fn parse_change(text: &str) -> Result<String, String> {
+    PlanRequest::default().add_change(text)?;
+    Ok(text.to_string())
 }
 
 /// The request that asks for `changes`, numbered `id`.
-fn request(id: u64, changes: &[PlanChange]) -> PlanRequest {
+fn request(id: u64, changes: &[String]) -> PlanRequest {
     let mut request = PlanRequest {
         id,
         ..PlanRequest::default()
     };
     for change in changes {
-        match change {
-            PlanChange::Reserve(fraction) => request.reserve_fraction = Some(*fraction),
-            PlanChange::TimeLeft(seconds) => request.time_left_s = Some(*seconds),
-            PlanChange::Levels(task, range) => {
-                request.levels.insert(task.clone(), *range);
-            }
-        }
+        // Checked when the arguments were parsed.
+        let _ = request.add_change(change);
     }
     request
 }
@@ -255,7 +212,7 @@ fn print_table(seen: &[Seen], terminal: bool) {
 }
 
 /// Asks `vehicle` for `changes` and prints its answer.
-fn set(vehicle: &str, changes: &[PlanChange], timeout_s: f64, json: bool) -> ExitCode {
+fn set(vehicle: &str, changes: &[String], timeout_s: f64, json: bool) -> ExitCode {
     match ask(vehicle, changes, timeout_s) {
         Ok(Some(asked)) => {
             let answer = &asked.answer;
@@ -338,7 +295,7 @@ struct Asked {
 /// Finds the vehicle's request and answer topics, then asks until it answers (a request sent
 /// before the reliable writer has met its reader could be lost, so it is repeated; the vehicle
 /// answers a repeat without applying it again).
-fn ask(vehicle: &str, changes: &[PlanChange], timeout_s: f64) -> Result<Option<Asked>, Ros2Error> {
+fn ask(vehicle: &str, changes: &[String], timeout_s: f64) -> Result<Option<Asked>, Ros2Error> {
     let namespace = format!("/qosrt/{vehicle}");
     let (_context, mut node) = open_node("/qosrt", "fleet_set")?;
     let requests = publisher::<StringMessage>(
@@ -408,32 +365,25 @@ fn ask(vehicle: &str, changes: &[PlanChange], timeout_s: f64) -> Result<Option<A
 #[cfg(test)]
 mod tests {
     use super::*;
+    use power_models::planner::LevelRange;
 
     #[test]
     fn a_change_is_a_known_key_and_a_value() {
-        assert_eq!(parse_change("reserve=0.3"), Ok(PlanChange::Reserve(0.3)));
+        let parsed = |text: &str| {
+            let mut request = PlanRequest::default();
+            request.add_change(text).map(|()| request)
+        };
+        assert_eq!(parsed("reserve=0.3").unwrap().reserve_fraction, Some(0.3));
+        assert_eq!(parsed("time_left_s=600").unwrap().time_left_s, Some(600.0));
         assert_eq!(
-            parse_change("time_left_s=600"),
-            Ok(PlanChange::TimeLeft(600.0))
+            parsed("hazard=1..3").unwrap().levels["hazard"],
+            Some(LevelRange { min: 1, max: 3 })
         );
         assert_eq!(
-            parse_change("hazard=1..3"),
-            Ok(PlanChange::Levels(
-                "hazard".into(),
-                Some(LevelRange { min: 1, max: 3 })
-            ))
+            parsed("hazard=2").unwrap().levels["hazard"],
+            Some(LevelRange { min: 2, max: 2 })
         );
-        assert_eq!(
-            parse_change("hazard=2"),
-            Ok(PlanChange::Levels(
-                "hazard".into(),
-                Some(LevelRange { min: 2, max: 2 })
-            ))
-        );
-        assert_eq!(
-            parse_change("hazard=all"),
-            Ok(PlanChange::Levels("hazard".into(), None))
-        );
+        assert_eq!(parsed("hazard=all").unwrap().levels["hazard"], None);
         assert!(parse_change("reserve").unwrap_err().contains("KEY=VALUE"));
         assert!(parse_change("reserve=lots")
             .unwrap_err()
@@ -449,9 +399,9 @@ mod tests {
         let asked = request(
             7,
             &[
-                PlanChange::Reserve(0.3),
-                PlanChange::TimeLeft(120.0),
-                PlanChange::Levels("hazard".into(), None),
+                "reserve=0.3".into(),
+                "time_left_s=120".into(),
+                "hazard=all".into(),
             ],
         );
         let json = serde_json::to_value(&asked).unwrap();

@@ -357,3 +357,25 @@ fn the_missions_record_section_sets_the_frame_policy_and_the_flag_overrides_it()
         "{configured} bytes as configured, {overridden} with every frame"
     );
 }
+
+/// A plan change asked for in flight is recorded as the runner took it, and the replay hands it
+/// to the same step: the mission replays with no difference, its re-plan and events included.
+#[test]
+fn a_plan_change_in_flight_is_recorded_and_replayed() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("m.mcap");
+    let sim = record(&file, &["--plan-change", "10:reserve=0.35,hazard=0..1"]);
+    assert!(sim.status.success(), "{}", output_text(&sim));
+    let recording = runtime::record::read_recording_file(&file).unwrap();
+    let requests: Vec<serde_json::Value> = recording
+        .topic("/qosrt/plan_request")
+        .map(|m| serde_json::from_slice(&m.data).unwrap())
+        .collect();
+    assert_eq!(requests.len(), 1, "{requests:?}");
+    assert_eq!(requests[0]["reserve_fraction"], 0.35);
+    assert_eq!(requests[0]["levels"]["hazard"]["max"], 1);
+    let replay = qosrt(&["replay", file.to_str().unwrap()]);
+    let text = output_text(&replay);
+    assert!(replay.status.success(), "{text}");
+    assert!(text.contains("no difference"), "{text}");
+}

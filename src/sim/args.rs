@@ -52,6 +52,15 @@ pub struct SimArgs {
     /// Hold a task at one of its levels, by knob value: --fix detection=10 (repeatable).
     #[arg(long = "fix", value_name = "TASK=VALUE", value_parser = crate::args::parse_fixed_level)]
     pub fixed_levels: Vec<(String, f64)>,
+    /// Ask for a plan change at a mission time, as a ground station would with `qosrt fleet
+    /// set`: --plan-change 300:reserve=0.35,hazard=0..1 (repeatable; KEY=VALUE as `qosrt fleet
+    /// set` takes them).
+    #[arg(
+        long = "plan-change",
+        value_name = "AT_S:KEY=VALUE,…",
+        conflicts_with = "serve"
+    )]
+    pub plan_changes: Vec<sitl::mission::ScheduledPlanChange>,
     /// Print the outcome as JSON.
     #[arg(long)]
     pub json: bool,
@@ -184,6 +193,7 @@ impl SimArgs {
                 connect_timeout: std::time::Duration::from_secs(60),
             }),
             ros2_vehicle: self.recording.ros2.clone(),
+            plan_changes: self.plan_changes.clone(),
             // ROS 2's tools watch a mission at the pace of a flight.
             real_time: self.recording.ros2.is_some(),
             ..SimOptions::default()

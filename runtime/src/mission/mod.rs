@@ -12,6 +12,7 @@ pub mod sequencer;
 pub use crate::governor::GovernorDecision;
 pub use observer::{
     MissionObserver, PlanAnswer, PlanForecast, PlanRequest, PlannedPhase, VehicleStatus,
+    PLAN_CHANGE_KEYS,
 };
 pub use replay::{replay, ChannelDiff, ReplayError, ReplayOptions, ReplayReport};
 pub use report::MissionLog;

@@ -28,8 +28,8 @@ pub trait MissionObserver: Send {
     fn tasks(&self, _time_s: f64, _levels: &QosLevels, _stats: &[TaskStats]) {}
     /// The mission at a glance, with the tasks' levels.
     fn status(&self, _status: &VehicleStatus) {}
-    /// Plan changes asked for since the last call (taken: each is asked for once).
-    fn plan_requests(&self) -> Vec<PlanRequest> {
+    /// Plan changes asked for since the last call, at `now_s` (taken: each is asked for once).
+    fn plan_requests(&self, _now_s: f64) -> Vec<PlanRequest> {
         Vec::new()
     }
     /// The answer to a plan change.
@@ -82,6 +82,51 @@ pub struct PlanRequest {
     /// Per task, the levels the governor may choose from now on (`null`: all of them).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub levels: BTreeMap<String, Option<LevelRange>>,
+}
+
+/// The changes a request takes, as `KEY=VALUE` (`qosrt fleet set`, `qosrt sim --plan-change`).
+pub const PLAN_CHANGE_KEYS: &str = "reserve=FRACTION, time_left_s=SECONDS or TASK=MIN..MAX|N|all";
+
+impl PlanRequest {
+    /// Adds one change, written `reserve=0.3`, `time_left_s=600`, `hazard=1..3`, `hazard=2` or
+    /// `hazard=all`; an error says what was expected.
+    pub fn add_change(&mut self, text: &str) -> Result<(), String> {
+        let (key, value) = text
+            .split_once('=')
+            .map(|(k, v)| (k.trim(), v.trim()))
+            .ok_or_else(|| format!("expected KEY=VALUE ({PLAN_CHANGE_KEYS}), found `{text}`"))?;
+        let number = |value: &str| {
+            value
+                .parse::<f64>()
+                .map_err(|_| format!("`{value}` is not a number; expected {key}=NUMBER"))
+        };
+        let level = |value: &str| {
+            value.parse::<usize>().map_err(|_| {
+                format!("`{value}` is not a level; expected {key}=MIN..MAX, {key}=N or {key}=all")
+            })
+        };
+        match key {
+            "reserve" => self.reserve_fraction = Some(number(value)?),
+            "time_left_s" => self.time_left_s = Some(number(value)?),
+            "" => {
+                return Err(format!(
+                    "`{text}` names nothing; expected {PLAN_CHANGE_KEYS}"
+                ))
+            }
+            task if value == "all" => {
+                self.levels.insert(task.into(), None);
+            }
+            task => {
+                let (min, max) = match value.split_once("..") {
+                    Some((min, max)) => (level(min)?, level(max.trim_start_matches('='))?),
+                    None => (level(value)?, level(value)?),
+                };
+                self.levels
+                    .insert(task.into(), Some(LevelRange { min, max }));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The mission's answer to a [`PlanRequest`]: the plan in force after it.

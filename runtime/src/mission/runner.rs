@@ -470,8 +470,8 @@ impl<S: TaskScheduler> MissionRunner<S> {
         if let Some(t_ns) = lockstep {
             self.link.end_tick(t_ns)?;
         }
-        self.record_step(now_s, lockstep);
         self.take_plan_requests(now_s)?;
+        self.record_step(now_s, lockstep);
         self.observe_tasks(now_s);
         self.log
             .loop_step

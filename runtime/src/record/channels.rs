@@ -124,6 +124,10 @@ pub const CAMERA_UNREAD: ChannelSpec =
     ChannelSpec::json("/camera/unread", "qosrt.UnreadFrame", Role::Input);
 pub const CAMERA_DEPTH: ChannelSpec =
     ChannelSpec::foxglove("/camera/depth", FoxgloveSchema::RawImage, Role::Input);
+/// Each plan change asked for in flight (a ground station's), as the runner took it: before the
+/// step it was taken in, so a replay hands it to the same step.
+pub const PLAN_REQUEST: ChannelSpec =
+    ChannelSpec::json("/qosrt/plan_request", "qosrt.PlanRequest", Role::Input);
 pub const MAVLINK_OUT: ChannelSpec =
     ChannelSpec::json("/mavlink/out", "qosrt.MavlinkMessage", Role::Output);
 pub const GOVERNOR: ChannelSpec =

@@ -310,6 +310,18 @@ impl Recorder {
         }
     }
 
+    /// A plan change the runner takes at `now_s`, before that step's record.
+    pub fn plan_request(&self, now_s: f64, request: &crate::mission::PlanRequest) {
+        if self.outputs_only {
+            return;
+        }
+        let t = ns(now_s);
+        let data = ch::json(request);
+        self.send(Box::new(move || {
+            vec![Encoded::at(ch::PLAN_REQUEST, t, data)]
+        }));
+    }
+
     /// A mission event (phases, landing modes, faults).
     pub fn event(&self, now_s: f64, text: String) {
         let t = ns(now_s);

@@ -244,7 +244,7 @@ impl crate::mission::MissionObserver for Ros2Node {
     fn status(&self, status: &VehicleStatus) {
         self.send(Update::Status(status.clone()));
     }
-    fn plan_requests(&self) -> Vec<PlanRequest> {
+    fn plan_requests(&self, _now_s: f64) -> Vec<PlanRequest> {
         std::mem::take(&mut *lock(&self.requests))
     }
     fn plan_answer(&self, answer: &PlanAnswer) {

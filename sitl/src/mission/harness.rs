@@ -8,7 +8,8 @@ use runtime::config::PhaseKind;
 use runtime::energy::MissionModel;
 use runtime::link::MavlinkLink;
 use runtime::mission::{
-    LandingBy, MissionEvent, MissionPlan, MissionRunner, RunnerError, RunnerOptions, StepReport,
+    LandingBy, MissionEvent, MissionObserver, MissionPlan, MissionRunner, RunnerError,
+    RunnerOptions, StepReport,
 };
 use runtime::record::{Recorder, RecordingHeader, RecordingSource};
 use runtime::registry::PluginRegistry;
@@ -505,6 +506,9 @@ fn start_runner(
         ));
         runner.observe(Box::new(node));
     }
+    if !options.plan_changes.is_empty() {
+        runner.observe(Box::new(ScheduledPlanRequests::new(&options.plan_changes)));
+    }
     let Some(record) = &options.record else {
         return Ok(runner);
     };
@@ -545,4 +549,37 @@ fn failed_tasks(scheduler: &dyn TaskScheduler) -> Vec<String> {
             format!("{name}: {error}")
         })
         .collect()
+}
+
+/// The plan changes of `--plan-change`, each handed to the runner at the first step at or after
+/// its time, numbered in order.
+struct ScheduledPlanRequests {
+    pending: std::sync::Mutex<std::collections::VecDeque<ScheduledPlanChange>>,
+}
+
+impl ScheduledPlanRequests {
+    fn new(changes: &[ScheduledPlanChange]) -> Self {
+        let mut changes = changes.to_vec();
+        changes.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
+        for (id, change) in changes.iter_mut().enumerate() {
+            change.request.id = id as u64 + 1;
+        }
+        Self {
+            pending: std::sync::Mutex::new(changes.into()),
+        }
+    }
+}
+
+impl MissionObserver for ScheduledPlanRequests {
+    fn plan_requests(&self, now_s: f64) -> Vec<runtime::mission::PlanRequest> {
+        let mut pending = self
+            .pending
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut due = Vec::new();
+        while pending.front().is_some_and(|change| change.at_s <= now_s) {
+            due.extend(pending.pop_front().map(|change| change.request));
+        }
+        due
+    }
 }

@@ -50,6 +50,38 @@ pub struct SimOptions {
     pub autopilot: Option<RealAutopilot>,
     /// Publish the mission on ROS 2 under `/qosrt/<this vehicle>/` (`--ros2`).
     pub ros2_vehicle: Option<String>,
+    /// Plan changes a ground station asks for at these mission times (`--plan-change`), as
+    /// `qosrt fleet set` would: to see what an operator's change does, deterministically.
+    pub plan_changes: Vec<ScheduledPlanChange>,
+}
+
+/// A plan change asked for once the mission's clock reaches `at_s`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScheduledPlanChange {
+    pub at_s: f64,
+    pub request: runtime::mission::PlanRequest,
+}
+
+impl std::str::FromStr for ScheduledPlanChange {
+    type Err = String;
+
+    /// `AT_S:KEY=VALUE[,KEY=VALUE…]`, e.g. `300:reserve=0.35,hazard=0..1`.
+    fn from_str(text: &str) -> Result<Self, String> {
+        let (at, changes) = text.split_once(':').ok_or_else(|| {
+            format!("expected AT_S:KEY=VALUE[,KEY=VALUE…] (e.g. 300:reserve=0.35), found `{text}`")
+        })?;
+        let at_s: f64 = at
+            .trim()
+            .parse()
+            .ok()
+            .filter(|t: &f64| t.is_finite() && *t >= 0.0)
+            .ok_or_else(|| format!("`{at}` is not a mission time in seconds ≥ 0"))?;
+        let mut request = runtime::mission::PlanRequest::default();
+        for change in changes.split(',') {
+            request.add_change(change)?;
+        }
+        Ok(Self { at_s, request })
+    }
 }
 
 /// How far a flying mission is.

@@ -7,7 +7,7 @@
 //! time at their levels' periods, they see the same frames and telemetry but step at their
 //! nominal times, so a flight's replay shows that timing as differences too.
 
-use super::{MissionRunner, RunnerError, RunnerOptions};
+use super::{MissionObserver, MissionRunner, PlanRequest, RunnerError, RunnerOptions};
 use crate::camera::{CapturedFrame, MemorySource};
 use crate::clock::Timestamp;
 use crate::energy::MissionModel;
@@ -24,9 +24,32 @@ use crate::topics::{CameraFrame, DepthFrame, CAMERA_FRAME, DEPTH_FRAME};
 use compare::{compare, messages_at, OutputPrints};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 mod compare;
+
+/// The recording's plan requests, for the runner to take at the next step, as it took them from
+/// the ground station's link in flight.
+#[derive(Clone, Default)]
+struct RecordedPlanRequests(Arc<Mutex<Vec<PlanRequest>>>);
+
+impl RecordedPlanRequests {
+    fn push(&self, request: PlanRequest) {
+        self.lock().push(request);
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<PlanRequest>> {
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+impl MissionObserver for RecordedPlanRequests {
+    fn plan_requests(&self, _now_s: f64) -> Vec<PlanRequest> {
+        std::mem::take(&mut *self.lock())
+    }
+}
 
 /// Why a recorded message is unreadable.
 #[derive(Debug, thiserror::Error)]
@@ -191,6 +214,9 @@ pub fn replay(
         &[],
     )?;
     runner.record(recorder).map_err(ReplayError::Setup)?;
+    // The plan changes a ground station asked for in flight, handed to the steps that took them.
+    let plan_requests = RecordedPlanRequests::default();
+    runner.observe(Box::new(plan_requests.clone()));
 
     let bad =
         |topic: &'static str, message: &RecordedMessage, why: BadMessage| ReplayError::BadMessage {
@@ -258,6 +284,11 @@ pub fn replay(
                         image: Arc::new(image),
                     },
                 );
+            }
+            t if t == ch::PLAN_REQUEST.topic => {
+                let request: PlanRequest = serde_json::from_slice(&message.data)
+                    .map_err(|e| bad(ch::PLAN_REQUEST.topic, message, e.into()))?;
+                plan_requests.push(request);
             }
             t if t == ch::STEP.topic => {
                 let step: StepRecord = serde_json::from_slice(&message.data)

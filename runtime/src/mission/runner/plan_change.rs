@@ -8,15 +8,19 @@ use crate::scheduler::TaskScheduler;
 use crate::telemetry::MissionProgress;
 
 impl<S: TaskScheduler> MissionRunner<S> {
-    /// The plan changes the observers were asked for, each applied and answered: the governor
-    /// re-plans at once, or the change is refused by name and nothing changes.
+    /// The plan changes the observers were asked for, each recorded, applied and answered: the
+    /// governor re-plans at once, or the change is refused by name and nothing changes. Taken
+    /// before the step is recorded, so a replay hands each to the step that took it.
     pub(super) fn take_plan_requests(&mut self, now_s: f64) -> Result<(), RunnerError> {
         let requests: Vec<PlanRequest> = self
             .observers
             .iter()
-            .flat_map(|o| o.plan_requests())
+            .flat_map(|o| o.plan_requests(now_s))
             .collect();
         for request in requests {
+            if let Some(recorder) = &self.recorder {
+                recorder.plan_request(now_s, &request);
+            }
             let refusal = match self.change_plan(now_s, &request) {
                 Ok(decisions) => {
                     self.note(now_s, describe(&request));
