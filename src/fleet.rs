@@ -173,8 +173,17 @@ fn print_table(seen: &[Seen], terminal: bool) {
         print!("\x1b[2J\x1b[H");
     }
     println!(
-        "{:<2}{:<14} {:<10} {:>8} {:>10} {:>10} {:>8} {:>7}  {:<28} last event",
-        "", "vehicle", "phase", "battery", "margin", "time left", "reserve", "link", "levels",
+        "{:<2}{:<14} {:<10} {:>8} {:>10} {:>10} {:>10} {:>8} {:>7}  {:<28} last event",
+        "",
+        "vehicle",
+        "phase",
+        "battery",
+        "margin",
+        "can fly",
+        "mission",
+        "reserve",
+        "link",
+        "levels",
     );
     for vehicle in seen {
         let status = &vehicle.status.status;
@@ -186,7 +195,7 @@ fn print_table(seen: &[Seen], terminal: bool) {
             .map(|(task, level)| format!("{task}={level}"))
             .collect();
         println!(
-            "{:<2}{:<14} {:<10} {:>8} {:>10} {:>10} {:>8} {:>6.1}s  {:<28} {}",
+            "{:<2}{:<14} {:<10} {:>8} {:>10} {:>10} {:>10} {:>8} {:>6.1}s  {:<28} {}",
             if warning { "!" } else { "" },
             vehicle.status.vehicle,
             status.phase.as_deref().unwrap_or("—"),
@@ -197,6 +206,7 @@ fn print_table(seen: &[Seen], terminal: bool) {
             ),
             or_dash(status.margin_wh.map(|m| format!("{m:+.1} Wh"))),
             or_dash(status.flight_time_left_s.map(|s| format!("{:.0} s", s))),
+            or_dash(status.mission_time_left_s.map(|s| format!("{:.0} s", s))),
             format!("{:.2}", status.reserve_fraction),
             vehicle.link_age_s,
             levels.join(" "),

@@ -494,16 +494,24 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
     // The bound holds from a second after the answer (the status's latency) until the
     // landing, where the hazard detector does not run.
     let answered_s = answered.duration_since(view_started).as_secs_f64();
+    let mut shown_time_left_s = None;
     let landing = snapshots
         .find(|snapshot| {
             let vehicle = ours(snapshot, &names[1]).unwrap();
             let hazard = vehicle["levels"]["hazard"].as_u64();
             if snapshot["time_s"].as_f64().unwrap() > answered_s + 1.0 {
                 assert!(hazard.is_none_or(|level| level <= 1), "{vehicle}");
+                shown_time_left_s = shown_time_left_s.or(vehicle["mission_time_left_s"].as_f64());
             }
             vehicle["phase"] == "landing"
         })
         .expect("the landing seen");
+    // The view shows the mission's new time left, counting down from what was asked.
+    let shown_time_left_s = shown_time_left_s.expect("the mission's time left shown");
+    assert!(
+        shown_time_left_s <= asked_s + 0.5 && shown_time_left_s >= asked_s - 4.0,
+        "{shown_time_left_s} s shown for {asked_s} s asked"
+    );
     let landing_after_s = landing["time_s"].as_f64().unwrap() - answered_s;
     assert!(
         landing_after_s < 12.0,

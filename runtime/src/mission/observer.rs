@@ -167,6 +167,9 @@ pub struct VehicleStatus {
     pub available_wh: Option<f64>,
     /// How long the energy above the reserve lasts at the power the levels in force draw.
     pub flight_time_left_s: Option<f64>,
+    /// The rest of the mission's planned time at the levels in force (`None` once it is over).
+    #[serde(default)]
+    pub mission_time_left_s: Option<f64>,
     pub land_now: bool,
     /// Every task's level index.
     pub levels: BTreeMap<String, usize>,

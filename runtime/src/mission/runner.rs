@@ -656,6 +656,9 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 .zip(power_w)
                 .filter(|(_, w)| *w > 0.0)
                 .map(|(r, w)| r.available_wh.max(0.0) / w * 3600.0),
+            mission_time_left_s: self
+                .phase
+                .map(|_| self.governor.planned_time_left_s(self.progress_at(now_s))),
             land_now: self.governor.land_now_raised(),
             levels: self
                 .named_levels(&self.with_fixed(self.governor.current_levels()))
