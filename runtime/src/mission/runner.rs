@@ -8,18 +8,17 @@
 //! harness in lockstep with its world on a [`VirtualScheduler`](crate::scheduler::VirtualScheduler).
 
 use super::input_rates::InputRateMeter;
-use super::observer::{MissionObserver, PlanForecast, PlannedPhase, VehicleStatus};
+use super::observer::MissionObserver;
 use super::report::MissionLog;
 use super::sequencer::{
     AutopilotView, MissionEvent, MissionPlan, MissionSequencer, MissionStatus, PhaseKind,
     SequencerInput,
 };
 use crate::bus::{Publisher, Subscriber};
-use crate::camera::{CameraSource, CameraSourceError};
+use crate::camera::CameraSource;
 use crate::clock::Timestamp;
 use crate::energy::MissionModel;
 use crate::governor::GovernorDecision;
-use crate::governor::ReplanSummary;
 use crate::governor::{Governor, GovernorError, GovernorEvent};
 use crate::link::{FailsafeAction, LinkError, LinkStatus, LinkUpdate, MavlinkLink, VehicleCommand};
 use crate::record::channels::StepRecord;
@@ -35,7 +34,9 @@ use power_models::planner::TaskLevel;
 use std::sync::Arc;
 use std::time::Duration;
 
+mod observers;
 mod plan_change;
+mod vision;
 
 /// The telemetry the loop flies on, with the rate it asks the autopilot for (MAVLink message
 /// id, Hz): PX4 sends BATTERY_STATUS at 0.5 Hz on its onboard link, ArduPilot nothing at all
@@ -233,98 +234,6 @@ impl<S: TaskScheduler> MissionRunner<S> {
         self.link.start_capture();
         self.recorder = Some(recorder);
         Ok(())
-    }
-
-    /// Tells `observer` what the mission does from now on.
-    pub fn observe(&mut self, mut observer: Box<dyn MissionObserver>) {
-        observer.watch_bus(self.scheduler.bus());
-        self.observers.push(observer);
-    }
-
-    /// The plan and forecast of the last re-plan, for the observers, once per re-plan.
-    fn observe_plan(&mut self, now_s: f64) {
-        // Before the first re-plan: the plan the governor started from, for a full pack.
-        let (time_s, trigger, remaining_energy_wh, needed_wh, margin_wh, sigma_wh) =
-            match self.governor.last_replan() {
-                Some(replan) => (
-                    replan.time_s,
-                    replan.trigger.to_string(),
-                    replan.remaining_energy_wh,
-                    replan.needed_wh,
-                    replan.end_margin_wh(),
-                    replan.sigma_wh,
-                ),
-                None => {
-                    let plan = self.governor.initial_plan();
-                    let usable_wh = self.governor.usable_full_wh();
-                    let available_wh = usable_wh * (1.0 - self.governor.reserve_fraction());
-                    (
-                        now_s,
-                        "the plan for a full pack".to_string(),
-                        usable_wh,
-                        plan.energy_wh,
-                        available_wh - plan.energy_wh,
-                        0.0,
-                    )
-                }
-            };
-        let replanned_at = self.governor.last_replan().map(|r| r.time_s);
-        if self.observed_replan_s.is_some() && self.observed_replan_s == Some(replanned_at) {
-            return;
-        }
-        self.observed_replan_s = Some(replanned_at);
-        let first = self.governor.planned_levels();
-        let phase_in_flight = self.model.config.mission.phases.len() - first.len();
-        let phases = first
-            .iter()
-            .enumerate()
-            .map(|(offset, levels)| PlannedPhase {
-                name: self.model.config.mission.phases[phase_in_flight + offset]
-                    .name
-                    .clone(),
-                levels: self
-                    .named_levels(levels)
-                    .tasks
-                    .into_iter()
-                    .map(|(task, level)| (task, level.level))
-                    .collect(),
-            })
-            .collect();
-        let plan = PlanForecast {
-            time_s,
-            trigger,
-            reserve_fraction: self.governor.reserve_fraction(),
-            remaining_energy_wh,
-            needed_wh,
-            margin_wh,
-            sigma_wh,
-            phases,
-        };
-        for observer in &self.observers {
-            observer.plan(&plan);
-        }
-    }
-
-    /// The tasks' levels and statistics for the observers: when a level changes, and once a
-    /// second.
-    fn observe_tasks(&mut self, now_s: f64) {
-        if self.observers.is_empty() {
-            return;
-        }
-        self.observe_plan(now_s);
-        let levels = self.with_fixed(self.governor.current_levels());
-        if let Some((observed, at_s)) = &self.observed_tasks {
-            if *observed == levels && now_s - at_s < OBSERVED_TASKS_PERIOD_S {
-                return;
-            }
-        }
-        let (named, stats) = (self.named_levels(&levels), self.scheduler.stats());
-        let status = self.vehicle_status(now_s);
-        for observer in &self.observers {
-            observer.tasks(now_s, &named, &stats);
-            observer.status(&status);
-        }
-        self.observed_tasks = Some((levels, now_s));
     }
 
     /// Ends the recording (after [`Self::stop`]: the tasks' statistics go in last).
@@ -635,41 +544,6 @@ impl<S: TaskScheduler> MissionRunner<S> {
         self.apply_levels()
     }
 
-    /// The mission at a glance, for the observers (a fleet's ground station).
-    fn vehicle_status(&self, now_s: f64) -> VehicleStatus {
-        let replan = self.governor.last_replan();
-        let power_w = self
-            .phase
-            .and_then(|phase| self.governor.model_power_w(phase))
-            .map(|w| w * self.governor.correction_ratio());
-        VehicleStatus {
-            time_s: now_s,
-            phase: self
-                .phase
-                .map(|index| self.model.config.mission.phases[index].name.clone()),
-            battery_fraction: self.log.battery.last.and_then(|b| b.remaining_fraction),
-            reserve_fraction: self.governor.reserve_fraction(),
-            margin_wh: replan.map(ReplanSummary::end_margin_wh),
-            available_wh: replan.map(|r| r.available_wh),
-            // What is left above the reserve, at the power the levels in force draw.
-            flight_time_left_s: replan
-                .zip(power_w)
-                .filter(|(_, w)| *w > 0.0)
-                .map(|(r, w)| r.available_wh.max(0.0) / w * 3600.0),
-            mission_time_left_s: self
-                .phase
-                .map(|_| self.governor.planned_time_left_s(self.progress_at(now_s))),
-            land_now: self.governor.land_now_raised(),
-            levels: self
-                .named_levels(&self.with_fixed(self.governor.current_levels()))
-                .tasks
-                .into_iter()
-                .map(|(task, level)| (task, level.level))
-                .collect(),
-            last_event: self.log.events.last().map(|(_, event)| event.clone()),
-        }
-    }
-
     /// The governor prices triggered tasks at the rates their inputs were measured at, once
     /// those moved (a camera slower than declared, a detector that stopped finding the pad).
     fn reprice_at_measured_input_rates(&mut self, now_s: f64) -> Result<(), RunnerError> {
@@ -694,62 +568,6 @@ impl<S: TaskScheduler> MissionRunner<S> {
     /// The rates the governor prices triggered tasks at: declared, then measured.
     pub fn input_rates(&self) -> &crate::energy::InputRates {
         self.input_rates.in_force()
-    }
-
-    /// Every frame the camera has ready, published at its capture time.
-    fn take_frames(&mut self, now_s: f64) {
-        let Some(camera) = self.camera.as_mut() else {
-            return;
-        };
-        let mut faults = Vec::new();
-        loop {
-            match camera.next_frame(now_s) {
-                Ok(Some(captured)) => {
-                    self.log.frames += 1;
-                    if let Some(recorder) = &self.recorder {
-                        recorder.frame(
-                            now_s,
-                            captured.capture_time_s,
-                            captured.frame.frame_index,
-                            captured.frame.image.clone(),
-                        );
-                    }
-                    let capture_s = captured.capture_time_s.min(now_s);
-                    let index = captured.frame.frame_index;
-                    let mut frame = captured.frame;
-                    frame.vehicle_at_capture = self.vehicle_history.at(capture_s);
-                    let stamp = Timestamp::from_secs_f64(capture_s.max(0.0));
-                    if self.arrivals.len() == ARRIVALS_KEPT {
-                        self.arrivals.pop_front();
-                    }
-                    self.arrivals
-                        .push_back((stamp.as_secs_f64(), captured.arrived_s.min(now_s)));
-                    let (_, replaced_read) = self.frames.publish_noting_read(stamp, frame);
-                    let replaced = self.frame_on_topic.replace(index);
-                    if let (Some(recorder), Some(replaced), Some(read)) =
-                        (&self.recorder, replaced, replaced_read)
-                    {
-                        recorder.frame_read(replaced, read);
-                    }
-                }
-                Ok(None) => break,
-                Err(error @ CameraSourceError::Ended { .. }) => {
-                    faults.push(format!("camera: {error}"));
-                    self.ended_camera_stats = Some(camera.stats());
-                    self.camera = None;
-                    break;
-                }
-                Err(error) => {
-                    self.log.camera_errors += 1;
-                    tracing::warn!(%error, "camera frame lost");
-                    faults.push(format!("camera: {error}"));
-                    break;
-                }
-            }
-        }
-        for fault in faults {
-            self.note(now_s, fault);
-        }
     }
 
     /// Phase changes: the scheduler runs the new phase's tasks, the plugins hear of it, the
@@ -814,61 +632,6 @@ impl<S: TaskScheduler> MissionRunner<S> {
                 },
             )
             .collect()
-    }
-
-    /// The first velocity setpoint sent after a new vision fix: capture-to-setpoint latency.
-    fn note_vision_latency(&mut self, now_s: f64, commands: &[VehicleCommand]) {
-        let steered = commands
-            .iter()
-            .any(|c| matches!(c, VehicleCommand::VelocityNed { .. }));
-        let fix_s = self.relative.peek().and_then(|m| m.value.last_fix_time_s);
-        if let (true, Some(fix_s)) = (steered, fix_s) {
-            if self.last_timed_fix_s != Some(fix_s) && now_s >= fix_s {
-                self.last_timed_fix_s = Some(fix_s);
-                self.log
-                    .capture_to_setpoint
-                    .record(((now_s - fix_s) * 1e9) as u64);
-                // The fix is stamped with its frame's capture: the frame it came from.
-                let arrived_s = self
-                    .arrivals
-                    .iter()
-                    .find(|(capture_s, _)| (capture_s - fix_s).abs() < 1e-6)
-                    .map(|&(_, arrived_s)| arrived_s);
-                if let Some(arrived_s) = arrived_s.filter(|&a| now_s >= a) {
-                    self.log
-                        .delivered_to_setpoint
-                        .record(((now_s - arrived_s) * 1e9) as u64);
-                }
-            }
-        }
-    }
-
-    /// LANDING_TARGET from the tracker's latest fix: the pad's direction in the body frame
-    /// (angles off the down axis) and its distance.
-    fn landing_target(&mut self, now_s: f64) -> Option<VehicleCommand> {
-        let relative = self.relative.take_new()?.value;
-        let fix_s = relative.last_fix_time_s?;
-        if now_s - fix_s > SETPOINT_MAX_AGE_S {
-            return None;
-        }
-        let attitude = self.link.telemetry().vehicle_state(now_s)?.attitude;
-        let pad_from_uav_ned = -relative.estimate.uav_relative_ned_m;
-        let body = attitude.ned_to_body_frd(&pad_from_uav_ned);
-        if body.z <= 0.0 {
-            return None;
-        }
-        Some(VehicleCommand::LandingTarget {
-            angle_x_rad: body.y.atan2(body.z),
-            angle_y_rad: (-body.x).atan2(body.z),
-            distance_m: body.norm(),
-            size_x_rad: 0.0,
-            size_y_rad: 0.0,
-            // The capture in the autopilot's clock once TIMESYNC has found it, else in ours.
-            time_usec: self
-                .link
-                .autopilot_time_us(fix_s)
-                .unwrap_or((fix_s.max(0.0) * 1e6) as u64),
-        })
     }
 
     /// The governor's levels for `phase` with the fixed ones put in.
