@@ -282,6 +282,53 @@ fn an_independent_ros2_client_receives_what_the_mission_recorded() {
     }
 }
 
+/// Processes killed when dropped, whether the test passes or panics.
+struct Children(Vec<std::process::Child>);
+
+impl Drop for Children {
+    fn drop(&mut self) {
+        for child in &mut self.0 {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+/// `qosrt fleet ARGS…`, waited for.
+fn fleet(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_qosrt"))
+        .arg("fleet")
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// One `qosrt fleet --json` view for `duration_s`, as a ground station keeps it open, and its
+/// snapshots in order.
+fn fleet_view(duration_s: u32) -> (std::process::Child, impl Iterator<Item = Value>) {
+    let mut view = Command::new(env!("CARGO_BIN_EXE_qosrt"))
+        .args(["fleet", "--json", "--period-s", "0.2", "--duration-s"])
+        .arg(duration_s.to_string())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let snapshots = BufReader::new(view.stdout.take().unwrap())
+        .lines()
+        .map_while(Result::ok)
+        .map(|line| serde_json::from_str::<Value>(&line).unwrap());
+    (view, snapshots)
+}
+
+/// `name`'s row in a fleet snapshot.
+fn vehicle_in(snapshot: &Value, name: &str) -> Option<Value> {
+    snapshot["vehicles"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|v| v["vehicle"] == name)
+        .cloned()
+}
+
 /// Two simulated vehicles flying with `--ros2` and a ground station's `qosrt fleet`: it sees both,
 /// each with its phase and energy margin. One's reserve is changed in flight; the other's time
 /// left, first too short (refused, saying how much the landing needs), then just that plus a
@@ -293,16 +340,6 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
     let names = [1, 2].map(|n| format!("fleet_{}_{n}", std::process::id()));
     let logs = tempfile::tempdir().unwrap();
     let log_of = |name: &str| logs.path().join(format!("{name}.log"));
-    // Killed at the end, whether the test passes or panics.
-    struct Children(Vec<std::process::Child>);
-    impl Drop for Children {
-        fn drop(&mut self) {
-            for child in &mut self.0 {
-                let _ = child.kill();
-                let _ = child.wait();
-            }
-        }
-    }
     let _vehicles = Children(
         names
             .iter()
@@ -332,21 +369,6 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
             .collect::<Vec<_>>()
             .join("\n")
     };
-    let fleet = |args: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_qosrt"))
-            .arg("fleet")
-            .args(args)
-            .output()
-            .unwrap()
-    };
-    let ours = |snapshot: &Value, name: &str| {
-        snapshot["vehicles"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|v| v["vehicle"] == name)
-            .cloned()
-    };
     // The bad requests go out while the rest of the test runs.
     let bad_requests = cyclonedds_python().map(|python| {
         Command::new(python)
@@ -358,29 +380,14 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
     });
     // One view for the whole test, as a ground station keeps it open: its snapshots in order.
     let view_started = std::time::Instant::now();
-    let mut view = Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .args([
-            "fleet",
-            "--json",
-            "--period-s",
-            "0.2",
-            "--duration-s",
-            "180",
-        ])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut snapshots = BufReader::new(view.stdout.take().unwrap())
-        .lines()
-        .map_while(Result::ok)
-        .map(|line| serde_json::from_str::<Value>(&line).unwrap());
+    let (mut view, mut snapshots) = fleet_view(180);
     // Both flying, with the margin of the governor's first re-plan (RustDDS announces itself
     // every 10 s; the first re-plan follows the governor's warm-up).
     let last = snapshots
         .find(|snapshot| {
             names
                 .iter()
-                .all(|name| ours(snapshot, name).is_some_and(|v| v["margin_wh"].is_number()))
+                .all(|name| vehicle_in(snapshot, name).is_some_and(|v| v["margin_wh"].is_number()))
         })
         .unwrap_or_else(|| {
             panic!(
@@ -389,7 +396,7 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
             )
         });
     for name in &names {
-        let vehicle = ours(&last, name).unwrap();
+        let vehicle = vehicle_in(&last, name).unwrap();
         assert!(vehicle["phase"].is_string(), "{vehicle}");
         assert!(vehicle["link_age_s"].as_f64().unwrap() < 1.5, "{vehicle}");
         assert_eq!(
@@ -399,7 +406,7 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
         assert!(vehicle["levels"]["detection"].is_number(), "{vehicle}");
     }
 
-    let margin_before = ours(&last, &names[0]).unwrap()["margin_wh"]
+    let margin_before = vehicle_in(&last, &names[0]).unwrap()["margin_wh"]
         .as_f64()
         .unwrap();
     let set = fleet(&["set", &names[0], "reserve=0.4", "--json"]);
@@ -426,19 +433,21 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
     );
     // The open view shows the change within a second or so of the answer.
     let changed = snapshots
-        .find(|snapshot| ours(snapshot, &names[0]).is_some_and(|v| v["reserve_fraction"] == 0.4))
+        .find(|snapshot| {
+            vehicle_in(snapshot, &names[0]).is_some_and(|v| v["reserve_fraction"] == 0.4)
+        })
         .expect("the change seen");
     eprintln!(
         "the answer came {:.1} s after the view started, the change was in its snapshot of {:.1} s",
         answered.duration_since(view_started).as_secs_f64(),
         changed["time_s"].as_f64().unwrap()
     );
-    let other = ours(&changed, &names[1]).expect("the other vehicle");
+    let other = vehicle_in(&changed, &names[1]).expect("the other vehicle");
     assert_eq!(other["reserve_fraction"], 0.25, "{other}");
 
     // Tracking: the time left is the tracking's and the landing's.
     snapshots
-        .find(|snapshot| ours(snapshot, &names[1]).is_some_and(|v| v["phase"] == "tracking"))
+        .find(|snapshot| vehicle_in(snapshot, &names[1]).is_some_and(|v| v["phase"] == "tracking"))
         .expect("the tracking seen");
     // Too short a time left is refused with what the landing still needs.
     let refused = fleet(&["set", &names[1], "time_left_s=1", "reserve=0.3"]);
@@ -497,7 +506,7 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
     let mut shown_time_left_s = None;
     let landing = snapshots
         .find(|snapshot| {
-            let vehicle = ours(snapshot, &names[1]).unwrap();
+            let vehicle = vehicle_in(snapshot, &names[1]).unwrap();
             let hazard = vehicle["levels"]["hazard"].as_u64();
             if snapshot["time_s"].as_f64().unwrap() > answered_s + 1.0 {
                 assert!(hazard.is_none_or(|level| level <= 1), "{vehicle}");
@@ -645,15 +654,6 @@ fn the_fleet_sees_three_px4_vehicles_and_changes_one_in_flight() {
         .iter()
         .map(|px4| format!("px4_{}_{}", std::process::id(), px4.instance))
         .collect();
-    struct Children(Vec<std::process::Child>);
-    impl Drop for Children {
-        fn drop(&mut self) {
-            for child in &mut self.0 {
-                let _ = child.kill();
-                let _ = child.wait();
-            }
-        }
-    }
     let logs: Vec<PathBuf> = names
         .iter()
         .map(|name| dir.path().join(format!("{name}.log")))
@@ -684,52 +684,26 @@ fn the_fleet_sees_three_px4_vehicles_and_changes_one_in_flight() {
             .collect::<Vec<_>>()
             .join("\n")
     };
-    let mut view = Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .args([
-            "fleet",
-            "--json",
-            "--period-s",
-            "0.2",
-            "--duration-s",
-            "150",
-        ])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut snapshots = BufReader::new(view.stdout.take().unwrap())
-        .lines()
-        .map_while(Result::ok)
-        .map(|line| serde_json::from_str::<Value>(&line).unwrap());
-    let ours = |snapshot: &Value, name: &str| {
-        snapshot["vehicles"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|v| v["vehicle"] == name)
-            .cloned()
-    };
+    let (mut view, mut snapshots) = fleet_view(150);
     // All three flying a phase, each with the margin of its governor's first re-plan (after
     // its 30 s warm-up on PX4's battery telemetry).
     let all_seen = snapshots
         .find(|snapshot| {
             names.iter().all(|name| {
-                ours(snapshot, name)
+                vehicle_in(snapshot, name)
                     .is_some_and(|v| v["margin_wh"].is_number() && v["phase"].is_string())
             })
         })
         .unwrap_or_else(|| panic!("not all three seen with a margin; they said:\n{}", said()));
     for name in &names {
-        let vehicle = ours(&all_seen, name).unwrap();
+        let vehicle = vehicle_in(&all_seen, name).unwrap();
         assert!(
             vehicle["battery_fraction"].as_f64().unwrap() > 0.5,
             "{vehicle}"
         );
         assert_eq!(vehicle["reserve_fraction"], 0.25, "{vehicle}");
     }
-    let set = Command::new(env!("CARGO_BIN_EXE_qosrt"))
-        .args(["fleet", "set", &names[1], "reserve=0.35", "--json"])
-        .output()
-        .unwrap();
+    let set = fleet(&["set", &names[1], "reserve=0.35", "--json"]);
     assert!(set.status.success(), "{}", output_text(&set));
     let answer: Value = serde_json::from_slice(&set.stdout).unwrap();
     assert_eq!(answer["accepted"], true, "{answer}");
@@ -740,10 +714,12 @@ fn the_fleet_sees_three_px4_vehicles_and_changes_one_in_flight() {
         answer["answered_ms"].as_f64().unwrap()
     );
     let changed = snapshots
-        .find(|snapshot| ours(snapshot, &names[1]).is_some_and(|v| v["reserve_fraction"] == 0.35))
+        .find(|snapshot| {
+            vehicle_in(snapshot, &names[1]).is_some_and(|v| v["reserve_fraction"] == 0.35)
+        })
         .unwrap_or_else(|| panic!("the change not seen; they said:\n{}", said()));
     for name in [&names[0], &names[2]] {
-        let vehicle = ours(&changed, name).expect("still seen");
+        let vehicle = vehicle_in(&changed, name).expect("still seen");
         assert_eq!(vehicle["reserve_fraction"], 0.25, "{vehicle}");
         assert!(vehicle["link_age_s"].as_f64().unwrap() < 1.5, "{vehicle}");
     }

@@ -93,6 +93,11 @@ impl LevelRange {
     pub fn contains(&self, level: usize) -> bool {
         (self.min..=self.max).contains(&level)
     }
+
+    /// Whether it names levels a task of `count` levels has (and at least one).
+    pub fn fits(&self, count: usize) -> bool {
+        self.min <= self.max && self.max < count
+    }
 }
 
 impl PlanTask {

@@ -39,7 +39,7 @@ fn validate_tasks(problem: &PlanProblem) -> Result<(), PlanError> {
             }
         }
         if let Some(range) = task.allowed_levels {
-            if range.min > range.max || range.max >= task.utility.len() {
+            if !range.fits(task.utility.len()) {
                 return Err(PlanError::BadLevelRange {
                     task: task.name.clone(),
                     min: range.min,

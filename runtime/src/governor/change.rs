@@ -5,7 +5,7 @@
 
 use super::{Governor, GovernorEvent, ReplanError, ReplanTrigger};
 use crate::telemetry::MissionProgress;
-use power_models::planner::{LevelRange, PlanPhase, PlanProblem, TaskLevel};
+use power_models::planner::{LevelRange, TaskLevel};
 use std::collections::BTreeMap;
 use thiserror::Error;
 
@@ -112,18 +112,11 @@ impl Governor {
         if !(time_left_s.is_finite() && time_left_s >= 0.0) {
             return Err(PlanChangeError::BadTimeLeft { value: time_left_s });
         }
-        let first = progress.phase;
         let mut fixed_s = 0.0;
         let mut stretched: Vec<(usize, f64)> = Vec::new();
-        for (phase, plan_phase) in self.problem.phases.iter().enumerate().skip(first) {
-            let elapsed_s = if phase == first {
-                progress.phase_elapsed_s
-            } else {
-                0.0
-            };
-            let left_s = (self.planned_duration_s(phase, plan_phase) - elapsed_s).max(0.0);
+        for (phase, left_s) in self.times_left_s(progress) {
             let is_timed = timed.get(phase).copied().unwrap_or(false)
-                && plan_phase.duration_by_level.is_none();
+                && self.problem.phases[phase].duration_by_level.is_none();
             if is_timed {
                 stretched.push((phase, left_s));
             } else {
@@ -150,32 +143,35 @@ impl Governor {
                 } else {
                     1.0 / count
                 };
-                let elapsed_s = if phase == first {
-                    progress.phase_elapsed_s
-                } else {
-                    0.0
-                };
-                (phase, elapsed_s + share_s * weight)
+                (phase, elapsed_in(progress, phase) + share_s * weight)
             })
             .collect())
     }
 
     /// The rest of the mission's planned time from `progress`, at the levels in force.
     pub fn planned_time_left_s(&self, progress: MissionProgress) -> f64 {
+        self.times_left_s(progress)
+            .into_iter()
+            .map(|(_, left_s)| left_s)
+            .sum()
+    }
+
+    /// Each phase from `progress` on, with its planned time left at the levels in force.
+    fn times_left_s(&self, progress: MissionProgress) -> Vec<(usize, f64)> {
         self.problem
             .phases
             .iter()
+            .zip(&self.levels)
             .enumerate()
             .skip(progress.phase)
-            .map(|(phase, plan_phase)| {
-                let elapsed_s = if phase == progress.phase {
-                    progress.phase_elapsed_s
-                } else {
-                    0.0
-                };
-                (self.planned_duration_s(phase, plan_phase) - elapsed_s).max(0.0)
+            .map(|(phase, (plan_phase, levels))| {
+                let duration_s = self
+                    .problem
+                    .phase_duration_s(phase, levels)
+                    .unwrap_or(plan_phase.duration_s);
+                (phase, (duration_s - elapsed_in(progress, phase)).max(0.0))
             })
-            .sum()
+            .collect()
     }
 
     /// The levels the planner may choose for `task`, by name (`None`: all of them).
@@ -219,7 +215,7 @@ impl Governor {
         let task = &mut self.problem.tasks[index];
         if let Some(LevelRange { min, max }) = range {
             let count = task.utility.len();
-            if min > max || max >= count {
+            if !(LevelRange { min, max }).fits(count) {
                 return Err(PlanChangeError::BadLevels {
                     task: name.into(),
                     min,
@@ -230,17 +226,6 @@ impl Governor {
         }
         task.allowed_levels = range;
         Ok(())
-    }
-
-    /// The phase's duration at the levels in force.
-    fn planned_duration_s(&self, phase: usize, plan_phase: &PlanPhase) -> f64 {
-        let one_phase = PlanProblem {
-            tasks: self.problem.tasks.clone(),
-            phases: vec![plan_phase.clone()],
-        };
-        one_phase
-            .evaluate(&self.levels[phase..=phase])
-            .map_or(plan_phase.duration_s, |e| e.duration_s)
     }
 
     /// Refuses a plan the battery cannot carry: even the cheapest allowed levels need more
@@ -258,5 +243,14 @@ impl Governor {
             });
         }
         Ok(())
+    }
+}
+
+/// How long phase `phase` has flown at `progress` (0 for a later one).
+fn elapsed_in(progress: MissionProgress, phase: usize) -> f64 {
+    if phase == progress.phase {
+        progress.phase_elapsed_s
+    } else {
+        0.0
     }
 }

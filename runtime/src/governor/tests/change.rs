@@ -4,20 +4,25 @@
 use super::*;
 use power_models::planner::LevelRange;
 
+/// One reading at 16.4 V and `current_a`, `second` seconds into the survey (phase 1).
+fn survey_reading(governor: &mut Governor, second: u32, current_a: f64) {
+    let telemetry = BatteryTelemetry {
+        time_s: f64::from(second),
+        voltage_v: Some(16.4),
+        current_a: Some(current_a),
+        consumed_mah: None,
+        remaining_fraction: None,
+    };
+    governor
+        .update(&telemetry, MissionProgress::new(1, f64::from(second)))
+        .unwrap();
+}
+
 /// The survey governor after 40 s of survey at 16.4 V and 8 A: warmed up and re-planned.
 fn flown_governor() -> Governor {
     let mut governor = survey_governor(60.0, EstimatorConfig::default(), GovernorConfig::default());
     for second in 0..=40 {
-        let telemetry = BatteryTelemetry {
-            time_s: f64::from(second),
-            voltage_v: Some(16.4),
-            current_a: Some(8.0),
-            consumed_mah: None,
-            remaining_fraction: None,
-        };
-        governor
-            .update(&telemetry, MissionProgress::new(1, f64::from(second)))
-            .unwrap();
+        survey_reading(&mut governor, second, 8.0);
     }
     assert!(
         governor.last_replan().is_some(),
@@ -147,16 +152,7 @@ fn levels_narrowed_in_flight_move_at_once_and_stay_within_their_bounds() {
     );
     // Later re-plans keep the bound, whatever the battery says.
     for second in 41..=200 {
-        let telemetry = BatteryTelemetry {
-            time_s: f64::from(second),
-            voltage_v: Some(16.4),
-            current_a: Some(4.0),
-            consumed_mah: None,
-            remaining_fraction: None,
-        };
-        governor
-            .update(&telemetry, MissionProgress::new(1, f64::from(second)))
-            .unwrap();
+        survey_reading(&mut governor, second, 4.0);
         assert_eq!(governor.current_level_of(1), Some(0), "at {second} s");
     }
     // Lifted: the bound is gone.
