@@ -300,6 +300,11 @@ const BAD_CASES: &[BadCase] = &[
         expect: &[at("\"half\"", 0, "`half`")],
     },
     BadCase {
+        name: "a frame codec that is not one",
+        replace: &[("[camera]\n", "[record]\ncodec = \"jpeg\"\n\n[camera]\n")],
+        expect: &[at("\"jpeg\"", 0, "`jpeg`")],
+    },
+    BadCase {
         name: "a size budget of nothing",
         replace: &[("[camera]\n", "[record]\nmax_mb = 0\n\n[camera]\n")],
         expect: &[at("0\n\n[camera]", 0, "nonzero")],

@@ -325,18 +325,21 @@ fn a_size_budget_splits_the_recording_at_steps_and_the_replay_follows_the_parts(
     assert!(truncated.contains("unread"), "{report:#}");
 }
 
+/// A short mission whose config has a `[record]` section of `setting`.
+fn short_mission_recording(dir: &std::path::Path, setting: &str) -> std::path::PathBuf {
+    let config = common::short_mission(dir, 3.0);
+    let text = std::fs::read_to_string(&config).unwrap();
+    let section = format!("[record]\n{setting}\n\n[camera]\n");
+    std::fs::write(&config, text.replace("[camera]\n", &section)).unwrap();
+    config
+}
+
 /// `[record] frames = "none"` in the mission keeps the frames out as the flag does; the flag
 /// overrides it.
 #[test]
 fn the_missions_record_section_sets_the_frame_policy_and_the_flag_overrides_it() {
     let dir = tempfile::tempdir().unwrap();
-    let config = common::short_mission(dir.path(), 3.0);
-    let text = std::fs::read_to_string(&config).unwrap();
-    std::fs::write(
-        &config,
-        text.replace("[camera]\n", "[record]\nframes = \"none\"\n\n[camera]\n"),
-    )
-    .unwrap();
+    let config = short_mission_recording(dir.path(), "frames = \"none\"");
     let recorded = |name: &str, extra: &[&str]| {
         let file = dir.path().join(name);
         let mut args = vec![
@@ -378,4 +381,61 @@ fn a_plan_change_in_flight_is_recorded_and_replayed() {
     let text = output_text(&replay);
     assert!(replay.status.success(), "{text}");
     assert!(text.contains("no difference"), "{text}");
+}
+
+/// Frames stored in the compact codec (the default) and as PNG hold the same pixels, each
+/// decoded by its own decoder (PNG's is the `image` crate's); the compact frames are smaller,
+/// its header says which codec it holds, and `[record] codec` in the mission chooses it.
+#[test]
+fn compact_and_png_frames_hold_the_same_pixels_and_compact_is_smaller() {
+    use runtime::record::frames::decode_frame;
+    use runtime::record::{read_recording_file, FrameCodec};
+    let dir = tempfile::tempdir().unwrap();
+    let (compact, png) = (dir.path().join("compact.mcap"), dir.path().join("png.mcap"));
+    record(&compact, &[]);
+    record(&png, &["--record-codec", "png"]);
+    let (compact, png) = (
+        read_recording_file(&compact).unwrap(),
+        read_recording_file(&png).unwrap(),
+    );
+    assert_eq!(compact.header.frame_codec, FrameCodec::Compact);
+    assert_eq!(png.header.frame_codec, FrameCodec::Png);
+    let frames = |recording: &runtime::record::Recording| -> Vec<(Vec<u8>, usize)> {
+        recording
+            .topic("/camera/image")
+            .map(|m| {
+                let image = decode_frame(recording.header.frame_codec, &m.data).unwrap();
+                (image.data().to_vec(), m.data.len())
+            })
+            .collect()
+    };
+    let (compact_frames, png_frames) = (frames(&compact), frames(&png));
+    assert_eq!(compact_frames.len(), png_frames.len());
+    assert!(compact_frames.len() > 20, "{} frames", compact_frames.len());
+    let mut sizes = (0, 0);
+    for ((compact_pixels, compact_bytes), (png_pixels, png_bytes)) in
+        compact_frames.iter().zip(&png_frames)
+    {
+        assert_eq!(compact_pixels, png_pixels);
+        sizes = (sizes.0 + compact_bytes, sizes.1 + png_bytes);
+    }
+    assert!(
+        (sizes.0 as f64) < 0.92 * sizes.1 as f64,
+        "compact frames {} bytes, PNG {}",
+        sizes.0,
+        sizes.1
+    );
+
+    // The mission's `[record] codec`.
+    let config = short_mission_recording(dir.path(), "codec = \"png\"");
+    let configured = dir.path().join("configured.mcap");
+    let sim = qosrt(&[
+        "sim",
+        config.to_str().unwrap(),
+        "--record",
+        configured.to_str().unwrap(),
+    ]);
+    assert!(sim.status.success(), "{}", output_text(&sim));
+    let header = read_recording_file(&configured).unwrap().header;
+    assert_eq!(header.frame_codec, FrameCodec::Png);
 }

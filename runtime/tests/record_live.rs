@@ -1,11 +1,13 @@
 //! The live view: a WebSocket client speaking Foxglove's protocol connects to a recorder's
 //! server, sees the channels advertised with their schemas, subscribes, and receives what the
-//! mission logs.
+//! mission logs, camera frames as PNGs a viewer shows whatever the file stores them as.
 
-use foxglove::messages::Log;
+use algorithms::vision::image::GrayImage;
+use foxglove::messages::{CompressedImage, Log};
 use prost::Message as _;
 use runtime::mission::MissionPlan;
-use runtime::record::{Recorder, RecorderOptions, RecordingHeader, RecordingSource};
+use runtime::record::{FrameCodec, Recorder, RecorderOptions, RecordingHeader, RecordingSource};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tungstenite::client::IntoClientRequest;
 use tungstenite::stream::MaybeTlsStream;
@@ -38,6 +40,7 @@ fn a_foxglove_client_sees_the_channels_and_receives_what_is_logged() {
     let recorder = Recorder::start(
         &RecorderOptions {
             live: Some("127.0.0.1:0".parse().unwrap()),
+            codec: FrameCodec::Compact,
             ..RecorderOptions::default()
         },
         &header(),
@@ -122,6 +125,32 @@ fn a_foxglove_client_sees_the_channels_and_receives_what_is_logged() {
         );
         let log = Log::decode(&data[13..]).unwrap();
         assert_eq!(log.message, "phase landing started");
+        break;
+    }
+    // A frame, kept in the compact codec, reaches the viewer as a PNG of the same pixels.
+    let subscribe = serde_json::json!({
+        "op": "subscribe",
+        "subscriptions": [{ "id": 8, "channelId": advertised["/camera/image"].0 }],
+    });
+    socket
+        .send(tungstenite::Message::Text(subscribe.to_string().into()))
+        .unwrap();
+    let pixels: Vec<u8> = (0..64 * 48).map(|i| (i * 7 % 251) as u8).collect();
+    let frame = Arc::new(GrayImage::from_vec(64, 48, pixels.clone()).unwrap());
+    for index in 0.. {
+        assert!(Instant::now() < deadline, "no frame on the subscription");
+        recorder.frame(13.0, 12.9, index, frame.clone());
+        let Some(tungstenite::Message::Binary(data)) = read(&mut socket) else {
+            continue;
+        };
+        if u32::from_le_bytes(data[1..5].try_into().unwrap()) != 8 {
+            continue;
+        }
+        let image = CompressedImage::decode(&data[13..]).unwrap();
+        assert_eq!(image.format, "png");
+        let decoded = image::load_from_memory(&image.data).unwrap().into_luma8();
+        assert_eq!(decoded.dimensions(), (64, 48));
+        assert_eq!(decoded.into_raw(), pixels);
         break;
     }
     recorder.finish().unwrap();

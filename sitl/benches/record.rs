@@ -1,7 +1,8 @@
 //! What recording costs the loop: the reference mission (tracking 30 s, every task, the
 //! realistic world) flown without a recording — the baseline — and with one under each frame
-//! policy (`--record`: every frame as PNG, telemetry, topic and decision to a zstd MCAP file;
-//! only the frames a task read; no frames), alternated in the same run. It prints the runtime
+//! policy (`--record`: every frame in the compact codec, telemetry, topic and decision to a
+//! zstd MCAP file; every frame as PNG; only the frames a task read; no frames), alternated in
+//! the same run. It prints the runtime
 //! loop's step time (p50, p99), the simulation's speed, the ratios to the baseline, and the
 //! file's megabytes per simulated minute.
 //!
@@ -11,7 +12,7 @@ use runtime::catalog::PluginCatalog;
 use runtime::config::load_file;
 use runtime::energy::load_mission_model;
 use runtime::plugins::builtin_registry;
-use runtime::record::{ConfigFile, FramePolicy, RecorderOptions};
+use runtime::record::{ConfigFile, FrameCodec, FramePolicy, RecorderOptions};
 use sim::world::WorldOptions;
 use sitl::mission::{simulate, SimOptions, SimRecording};
 use std::path::Path;
@@ -28,11 +29,24 @@ fn main() {
     let config_files = ConfigFile::collect(&path, &model.config).expect("the config files");
     // What each run records: nothing (the baseline), then each frame policy.
     // The baseline again at the end: its ratio to the first is the measurement's own noise.
-    let policies: [(&str, Option<FramePolicy>); 5] = [
+    let policies: [(&str, Option<(FramePolicy, FrameCodec)>); 6] = [
         ("without a recording (baseline)", None),
-        ("--record, every frame", Some(FramePolicy::Every)),
-        ("--record-frames consumed", Some(FramePolicy::Consumed)),
-        ("--record-frames none", Some(FramePolicy::None)),
+        (
+            "--record, every frame (compact)",
+            Some((FramePolicy::Every, FrameCodec::Compact)),
+        ),
+        (
+            "--record-codec png",
+            Some((FramePolicy::Every, FrameCodec::Png)),
+        ),
+        (
+            "--record-frames consumed",
+            Some((FramePolicy::Consumed, FrameCodec::Compact)),
+        ),
+        (
+            "--record-frames none",
+            Some((FramePolicy::None, FrameCodec::Compact)),
+        ),
         ("without a recording, again", None),
     ];
     // (p50 µs, p99 µs, speed ×, MB per simulated minute) per repeat, for each.
@@ -46,10 +60,11 @@ fn main() {
                     ..WorldOptions::default()
                 },
                 tracking_s: Some(30.0),
-                record: policy.map(|frames| SimRecording {
+                record: policy.map(|(frames, codec)| SimRecording {
                     recorder: RecorderOptions {
                         file: Some(file.clone()),
                         frames,
+                        codec,
                         ..RecorderOptions::default()
                     },
                     config_files: config_files.clone(),

@@ -130,6 +130,50 @@ pub struct RecordSettings {
     /// Each file's size budget in MB (`--record-max-mb`); none by default.
     #[serde(default)]
     pub max_mb: Option<std::num::NonZeroU64>,
+    /// How kept frames are stored: "compact" (the default), "png" or "raw"
+    /// (`--record-codec`).
+    #[serde(default)]
+    pub codec: FrameCodec,
+}
+
+/// How a recording's camera frames are stored, each a lossless `foxglove.CompressedImage` or
+/// `RawImage` (the recording's header says which).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameCodec {
+    /// `foxglove.RawImage`, mono8: the recordings made before frames were compressed (a
+    /// header without a codec means this).
+    Raw,
+    /// A lossless 8-bit grey PNG, which Foxglove shows: about 0.56 of the raw bytes.
+    Png,
+    /// qosrt's own lossless codec (`record::gray_codec`), what a recording uses unless told
+    /// otherwise: about 0.48 of the raw bytes; the live view and `qosrt replay` read it,
+    /// Foxglove does not.
+    #[default]
+    Compact,
+}
+
+impl FrameCodec {
+    /// What a recording's header without a codec means: made before frames were compressed.
+    pub fn before_compression() -> Self {
+        Self::Raw
+    }
+}
+
+impl std::str::FromStr for FrameCodec {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        match text {
+            "compact" => Ok(Self::Compact),
+            "png" => Ok(Self::Png),
+            "raw" => Ok(Self::Raw),
+            _ => Err(format!(
+                "expected compact (qosrt's lossless codec, the smallest), png (lossless, \
+                 shown by Foxglove) or raw, found `{text}`"
+            )),
+        }
+    }
 }
 
 /// Which camera frames a recording keeps. Frames are nearly all of a recording's size (a

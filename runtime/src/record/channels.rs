@@ -351,10 +351,15 @@ pub enum ChannelError {
     NotRawImage(#[source] prost::DecodeError),
     #[error("not a foxglove.CompressedImage: {0}")]
     NotCompressedImage(#[source] prost::DecodeError),
-    #[error("expected a frame as an 8-bit grey png, found {0}")]
-    ImageFormat(String),
+    #[error("expected a frame as an 8-bit grey {expected}, found {found}")]
+    ImageFormat {
+        expected: &'static str,
+        found: String,
+    },
     #[error("the frame's png does not decode: {0}")]
     Png(#[from] image::ImageError),
+    #[error("the frame's compact codec does not decode: {0}")]
+    Compact(#[from] super::gray_codec::GrayCodecError),
     #[error(
         "expected a packed {expected} image, found {found} with step {step} for width {width}"
     )]

@@ -4,7 +4,8 @@
 
 use super::channels as ch;
 use super::encoded::Encoded;
-use super::frames::{png_image, UnreadFrame};
+use super::frames::{encode_frame, UnreadFrame};
+use super::FrameCodec;
 use algorithms::vision::image::GrayImage;
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -16,13 +17,17 @@ pub struct DeliveredFrame {
     pub capture_ns: u64,
     pub index: u64,
     pub image: Arc<GrayImage>,
+    pub codec: FrameCodec,
 }
 
 impl DeliveredFrame {
-    /// The frame's message: its pixels (a PNG) where a task read it, else its size alone.
+    /// The frame's message: its pixels where a task read it, else its size alone.
     fn encode(&self, read: bool) -> Encoded {
         let (spec, data) = if read {
-            (ch::CAMERA_IMAGE, png_image(&self.image, self.capture_ns))
+            (
+                ch::CAMERA_IMAGE,
+                encode_frame(self.codec, &self.image, self.capture_ns),
+            )
         } else {
             (ch::CAMERA_UNREAD, ch::json(&UnreadFrame::of(&self.image)))
         };
@@ -129,6 +134,7 @@ mod tests {
             capture_ns: index * 100 - 30,
             index,
             image: Arc::new(GrayImage::from_vec(4, 3, vec![index as u8; 12]).unwrap()),
+            codec: FrameCodec::Png,
         }
     }
 

@@ -1,5 +1,7 @@
-//! Camera frames in a recording. A kept frame is a lossless PNG in a `foxglove.CompressedImage`
-//! (Foxglove shows it as it is; the replay gets every pixel back). Under `frames = "consumed"`
+//! Camera frames in a recording. A kept frame is a lossless `foxglove.CompressedImage`: by
+//! default in qosrt's compact codec ([`super::gray_codec`], format `qosrt-gray`), or as a PNG,
+//! which Foxglove shows as it is (the live view always gets PNGs); the replay gets every pixel
+//! back either way. Under `frames = "consumed"`
 //! a frame no task read is kept as its size alone (`/camera/unread`): the replay delivers a
 //! blank frame in its place, so the tasks, the topic's counts and the measured camera rate see
 //! what they saw in flight.
@@ -7,11 +9,12 @@
 //! PNG at its fastest deflate with the Paeth filter on every row: on the reference mission's
 //! 640×480 frames it keeps 0.56 of the raw bytes, smaller than deflate's strongest setting
 //! (0.57) at a fortieth of the time; choosing each row's filter (0.55) costs half as much again
-//! on the recorder's thread. Those frames carry the camera's noise: their pixels' residuals after
-//! the best of the usual predictors hold 4.0 bits each, so no lossless codec can go much below
-//! 0.50.
+//! on the recorder's thread. Those frames carry the camera's noise, which PNG's filters and
+//! deflate's codes do not model: the compact codec keeps 0.48.
 
 use super::channels::{timestamp, ChannelError};
+use super::gray_codec;
+use super::FrameCodec;
 use algorithms::vision::image::GrayImage;
 use foxglove::messages as fg;
 use image::codecs::png::{CompressionType, FilterType, PngDecoder, PngEncoder};
@@ -19,49 +22,87 @@ use image::{ImageDecoder, ImageEncoder};
 use prost::Message as _;
 use serde::{Deserialize, Serialize};
 
-/// How a recording's camera frames are stored (the header says).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FrameCodec {
-    /// `foxglove.RawImage`, mono8: the recordings made before frames were compressed.
-    #[default]
-    Raw,
-    /// `foxglove.CompressedImage`, format `png`, 8-bit grey.
-    Png,
+/// The `foxglove.CompressedImage` format of the compact codec's frames.
+pub const COMPACT_FORMAT: &str = "qosrt-gray";
+
+/// A grayscale frame as `codec` stores it, stamped at its capture.
+pub fn encode_frame(codec: FrameCodec, image: &GrayImage, capture_ns: u64) -> Vec<u8> {
+    match codec {
+        FrameCodec::Raw => super::channels::gray_image(image, capture_ns),
+        FrameCodec::Png => png_image(image, capture_ns),
+        FrameCodec::Compact => compressed_image(
+            capture_ns,
+            gray_codec::encode(image.width(), image.height(), image.data()),
+            COMPACT_FORMAT,
+        ),
+    }
+}
+
+fn compressed_image(capture_ns: u64, data: Vec<u8>, format: &str) -> Vec<u8> {
+    fg::CompressedImage {
+        timestamp: Some(timestamp(capture_ns)),
+        frame_id: "camera".into(),
+        data: data.into(),
+        format: format.into(),
+    }
+    .encode_to_vec()
+}
+
+/// A frame message as a viewer can show it: a compact frame becomes a PNG, anything else is
+/// passed on as it is (a frame that does not decode too: the viewer says what it makes of it).
+pub fn for_viewer(bytes: &[u8]) -> std::borrow::Cow<'_, [u8]> {
+    let Ok(message) = fg::CompressedImage::decode(bytes) else {
+        return bytes.into();
+    };
+    if message.format != COMPACT_FORMAT {
+        return bytes.into();
+    }
+    match gray_codec::decode(&message.data) {
+        Ok((width, height, pixels)) => fg::CompressedImage {
+            data: png_bytes(width, height, &pixels).into(),
+            format: "png".into(),
+            ..message
+        }
+        .encode_to_vec()
+        .into(),
+        Err(_) => bytes.into(),
+    }
 }
 
 /// A grayscale frame as a lossless PNG in `foxglove.CompressedImage`, stamped at its capture.
 pub fn png_image(image: &GrayImage, capture_ns: u64) -> Vec<u8> {
-    let mut png = Vec::with_capacity(image.data().len() / 2);
+    let png = png_bytes(image.width(), image.height(), image.data());
+    compressed_image(capture_ns, png, "png")
+}
+
+fn png_bytes(width: usize, height: usize, pixels: &[u8]) -> Vec<u8> {
+    let mut png = Vec::with_capacity(pixels.len() / 2);
     PngEncoder::new_with_quality(&mut png, CompressionType::Fast, FilterType::Paeth)
         .write_image(
-            image.data(),
-            image.width() as u32,
-            image.height() as u32,
+            pixels,
+            width as u32,
+            height as u32,
             image::ExtendedColorType::L8,
         )
         .expect("a grey image of its own size encodes into memory");
-    fg::CompressedImage {
-        timestamp: Some(timestamp(capture_ns)),
-        frame_id: "camera".into(),
-        data: png.into(),
-        format: "png".into(),
-    }
-    .encode_to_vec()
+    png
 }
 
 /// The grayscale frame a `foxglove.CompressedImage` holds as an 8-bit grey PNG.
 pub fn decode_png_image(bytes: &[u8]) -> Result<GrayImage, ChannelError> {
     let message = fg::CompressedImage::decode(bytes).map_err(ChannelError::NotCompressedImage)?;
     if message.format != "png" {
-        return Err(ChannelError::ImageFormat(message.format));
+        return Err(ChannelError::ImageFormat {
+            expected: "png",
+            found: message.format,
+        });
     }
     let decoder = PngDecoder::new(std::io::Cursor::new(&message.data[..]))?;
     if decoder.color_type() != image::ColorType::L8 {
-        return Err(ChannelError::ImageFormat(format!(
-            "png of {:?} pixels, not 8-bit grey",
-            decoder.color_type()
-        )));
+        return Err(ChannelError::ImageFormat {
+            expected: "png",
+            found: format!("png of {:?} pixels, not 8-bit grey", decoder.color_type()),
+        });
     }
     let (width, height) = decoder.dimensions();
     let mut pixels = vec![0; decoder.total_bytes() as usize];
@@ -78,6 +119,18 @@ pub fn decode_frame(codec: FrameCodec, bytes: &[u8]) -> Result<GrayImage, Channe
     match codec {
         FrameCodec::Raw => super::channels::decode_gray_image(bytes),
         FrameCodec::Png => decode_png_image(bytes),
+        FrameCodec::Compact => {
+            let message =
+                fg::CompressedImage::decode(bytes).map_err(ChannelError::NotCompressedImage)?;
+            if message.format != COMPACT_FORMAT {
+                return Err(ChannelError::ImageFormat {
+                    expected: COMPACT_FORMAT,
+                    found: message.format,
+                });
+            }
+            let (width, height, pixels) = gray_codec::decode(&message.data)?;
+            Ok(GrayImage::from_vec(width, height, pixels)?)
+        }
     }
 }
 
@@ -147,7 +200,7 @@ mod tests {
         .encode_to_vec();
         assert!(matches!(
             decode_png_image(&jpeg),
-            Err(ChannelError::ImageFormat(format)) if format == "jpeg"
+            Err(ChannelError::ImageFormat { found, .. }) if found == "jpeg"
         ));
         let mut rgb = Vec::new();
         PngEncoder::new(&mut rgb)
@@ -168,6 +221,40 @@ mod tests {
         }
         .encode_to_vec();
         assert!(matches!(decode_png_image(&cut), Err(ChannelError::Png(_))));
+    }
+
+    #[test]
+    fn a_compact_frame_comes_back_pixel_for_pixel_and_a_viewer_gets_it_as_png() {
+        let frame = noisy(64, 48);
+        let compact = encode_frame(FrameCodec::Compact, &frame, 7);
+        let message = fg::CompressedImage::decode(&compact[..]).unwrap();
+        assert_eq!(message.format, COMPACT_FORMAT);
+        assert_eq!(message.timestamp.unwrap().nsec(), 7);
+        let back = decode_frame(FrameCodec::Compact, &compact).unwrap();
+        assert_eq!(back.data(), frame.data());
+        // The viewer's copy: a PNG of the same pixels and stamp, decoded by the PNG decoder.
+        let viewed = for_viewer(&compact);
+        let png = fg::CompressedImage::decode(&viewed[..]).unwrap();
+        assert_eq!(
+            (png.format.as_str(), png.timestamp),
+            ("png", message.timestamp)
+        );
+        assert_eq!(decode_png_image(&viewed).unwrap().data(), frame.data());
+        // A PNG frame goes to the viewer as it is.
+        let as_png = encode_frame(FrameCodec::Png, &frame, 7);
+        assert_eq!(for_viewer(&as_png), &as_png[..]);
+        // A frame under the other codec's name is refused, naming both.
+        let error = decode_frame(FrameCodec::Compact, &as_png).unwrap_err();
+        assert!(
+            error.to_string().contains("qosrt-gray, found png"),
+            "{error}"
+        );
+        let mut cut = message.clone();
+        cut.data = cut.data.slice(..20);
+        assert!(matches!(
+            decode_frame(FrameCodec::Compact, &cut.encode_to_vec()),
+            Err(ChannelError::Compact(_))
+        ));
     }
 
     #[test]

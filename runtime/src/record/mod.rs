@@ -10,13 +10,13 @@ pub mod channels;
 mod encoded;
 mod frame_hold;
 pub mod frames;
+pub mod gray_codec;
 pub mod latency;
 pub mod reader;
 pub mod recorder;
 mod sink;
 
-pub use crate::config::FramePolicy;
-pub use frames::FrameCodec;
+pub use crate::config::{FrameCodec, FramePolicy};
 pub use reader::{
     read_recording, read_recording_file, RecordedMessage, Recording, RecordingReader,
 };
@@ -115,7 +115,7 @@ pub struct RecordingHeader {
     #[serde(default)]
     pub frames: FramePolicy,
     /// How the kept frames are stored (recordings from before compression: raw).
-    #[serde(default)]
+    #[serde(default = "FrameCodec::before_compression")]
     pub frame_codec: FrameCodec,
     /// The recording's own id: every part of a split recording carries it.
     #[serde(default)]
@@ -153,7 +153,7 @@ impl RecordingHeader {
             config_file,
             link_peer_known: false,
             frames: FramePolicy::Every,
-            frame_codec: FrameCodec::Png,
+            frame_codec: FrameCodec::default(),
             recording_id: String::new(),
             part: 0,
             first_part: None,

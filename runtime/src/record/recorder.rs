@@ -7,7 +7,7 @@ use super::encoded::Encoded;
 use super::frame_hold::{DeliveredFrame, FrameHold};
 pub use super::sink::RecordingSummary;
 use super::sink::{McapSink, Output};
-use super::{ConfigFile, FramePolicy, RecordError, RecordingHeader};
+use super::{ConfigFile, FrameCodec, FramePolicy, RecordError, RecordingHeader};
 use crate::bus::{Bus, Message, Topic};
 use crate::clock::Timestamp;
 use crate::governor::GovernorDecision;
@@ -44,6 +44,8 @@ pub struct RecorderOptions {
     pub outputs_only: bool,
     /// Which camera and depth frames to keep (the header says which were kept).
     pub frames: FramePolicy,
+    /// How the kept camera frames are stored (the header says).
+    pub codec: FrameCodec,
     /// Each file's size budget: past it the recording goes on in a next part.
     pub max_bytes: Option<u64>,
 }
@@ -72,6 +74,7 @@ pub struct Recorder {
     thread: Option<JoinHandle<Result<RecordingSummary, RecordError>>>,
     outputs_only: bool,
     frames: FramePolicy,
+    codec: FrameCodec,
     live_port: Option<u16>,
 }
 
@@ -104,6 +107,7 @@ impl Recorder {
         };
         let header = RecordingHeader {
             frames: options.frames,
+            frame_codec: options.codec,
             recording_id: recording_id(),
             ..header.clone()
         };
@@ -131,6 +135,7 @@ impl Recorder {
             thread: Some(thread),
             outputs_only: options.outputs_only,
             frames: options.frames,
+            codec: options.codec,
             live_port,
         })
     }
@@ -289,6 +294,7 @@ impl Recorder {
             capture_ns: ns(capture_s),
             index: frame_index,
             image,
+            codec: self.codec,
         };
         let read = (self.frames == FramePolicy::Every).then_some(true);
         if let Some(jobs) = &self.jobs {
@@ -517,8 +523,14 @@ impl LiveServer {
 
     fn log(&mut self, message: &Encoded) {
         if let Some(channel) = self.channel(message.spec) {
+            // A viewer shows PNG frames, whatever the file stores them as.
+            let data = if message.spec.topic == ch::CAMERA_IMAGE.topic {
+                super::frames::for_viewer(&message.data)
+            } else {
+                message.data.as_slice().into()
+            };
             channel.log_with_meta(
-                &message.data,
+                &data,
                 foxglove::PartialMetadata {
                     log_time: Some(message.log_time_ns),
                 },

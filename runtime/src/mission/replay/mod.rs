@@ -22,11 +22,13 @@ use crate::registry::PluginRegistry;
 use crate::scheduler::SchedulerBuilder;
 use crate::topics::{CameraFrame, DepthFrame, CAMERA_FRAME, DEPTH_FRAME};
 use compare::{compare, messages_at, OutputPrints};
+use decode_ahead::DecodeAhead;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 mod compare;
+mod decode_ahead;
 
 /// The recording's plan requests, for the runner to take at the next step, as it took them from
 /// the ground station's link in flight.
@@ -232,7 +234,8 @@ pub fn replay(
     let mut steps_replayed = 0;
     let mut replayed_until_ns = 0;
     let mut stopped = None;
-    for message in recording.by_ref() {
+    let mut messages = DecodeAhead::new(recording.by_ref(), header.frame_codec);
+    while let Some((message, pixels)) = messages.next() {
         let message = &message;
         recorded_outputs.add(message);
         stamps.add(message);
@@ -241,6 +244,7 @@ pub fn replay(
         }
         if stopped.is_some() {
             // The replay has stopped; the rest is read only to count its steps.
+            messages.stop_decoding();
             continue;
         }
         match message.topic.as_str() {
@@ -254,7 +258,8 @@ pub fn replay(
             }
             t if t == ch::CAMERA_IMAGE.topic || t == ch::CAMERA_UNREAD.topic => {
                 let image = if t == ch::CAMERA_IMAGE.topic {
-                    decode_frame(header.frame_codec, &message.data)
+                    pixels
+                        .unwrap_or_else(|| decode_frame(header.frame_codec, &message.data))
                         .map_err(|why| bad(ch::CAMERA_IMAGE.topic, message, why.into()))?
                 } else {
                     // No task read it in flight: a blank frame of its size takes its place.
