@@ -228,13 +228,20 @@ fn the_file_reads_in_the_mcap_crates_indexed_reader_with_foxglove_schemas() {
         .and_then(|n| n.parse::<u64>().ok())
         .expect("the run says how many messages it recorded");
     assert_eq!(said, stats.message_count);
-    // A frame decodes as the image the camera delivered: 640 x 480, grey, as a PNG.
+    // A frame decodes as the image the camera delivered: 640 x 480, grey, a
+    // `foxglove.CompressedImage` in the compact codec (the default).
     let image = mcap::MessageStream::new(&bytes)
         .unwrap()
         .map(Result::unwrap)
         .find(|m| m.channel.topic == "/camera/image")
         .unwrap();
-    let frame = runtime::record::frames::decode_png_image(&image.data).unwrap();
+    assert_eq!(
+        image.channel.schema.as_ref().unwrap().name,
+        "foxglove.CompressedImage"
+    );
+    let frame =
+        runtime::record::frames::decode_frame(runtime::record::FrameCodec::Compact, &image.data)
+            .unwrap();
     assert_eq!((frame.width(), frame.height()), (640, 480));
     // The config it flew is attached.
     let attached: Vec<String> = summary
