@@ -13,6 +13,10 @@ use std::sync::mpsc;
 /// How many frames may be decoding or waiting ahead of the replay: enough to keep every core
 /// busy, few enough that memory does not grow with the flight (a 640×480 frame is 300 kB).
 const FRAMES_AHEAD: usize = 4;
+/// How many messages may wait ahead of the replay, frames or not: the reference mission has
+/// about 64 a frame, and a recording without frames (or a replay that stopped decoding) must
+/// not be read ahead to its end.
+const MESSAGES_AHEAD: usize = 512;
 
 type Decoded = Result<GrayImage, ChannelError>;
 
@@ -43,9 +47,10 @@ impl<I: Iterator<Item = RecordedMessage>> DecodeAhead<I> {
         self.decoding = false;
     }
 
-    /// Reads on until enough frames are on their way, or the source ends.
+    /// Reads on until enough frames are on their way, as many messages wait, or the source
+    /// ends.
     fn read_ahead(&mut self) {
-        while self.frames_ahead < FRAMES_AHEAD {
+        while self.frames_ahead < FRAMES_AHEAD && self.ahead.len() < MESSAGES_AHEAD {
             let Some(message) = self.source.next() else {
                 return;
             };
@@ -70,9 +75,7 @@ impl<I: Iterator<Item = RecordedMessage>> Iterator for DecodeAhead<I> {
     type Item = (RecordedMessage, Option<Decoded>);
 
     fn next(&mut self) -> Option<Self::Item> {
-        if self.ahead.is_empty() || self.frames_ahead < FRAMES_AHEAD {
-            self.read_ahead();
-        }
+        self.read_ahead();
         let (message, pixels) = self.ahead.pop_front()?;
         let pixels = pixels.map(|receiver| {
             self.frames_ahead -= 1;
@@ -129,5 +132,32 @@ mod tests {
             }
         }
         assert!(matches!(replayed.last(), Some((_, Some(Err(_))))));
+    }
+
+    #[test]
+    fn a_source_without_frames_is_read_ahead_only_so_far() {
+        // Endless, and no frame in it: the reader must not wait for frames that never come.
+        let mut read = 0;
+        let source = std::iter::from_fn(|| {
+            read += 1;
+            Some(message("/qosrt/step", Vec::new(), read))
+        });
+        let mut messages = DecodeAhead::new(source, FrameCodec::Compact);
+        let (first, pixels) = messages.next().unwrap();
+        assert_eq!((first.sequence, pixels.is_none()), (1, true));
+        assert_eq!(messages.ahead.len(), MESSAGES_AHEAD - 1);
+        // Frames no longer decoded once the replay stops: still read only so far ahead.
+        let frame = GrayImage::from_vec(4, 4, vec![9; 16]).unwrap();
+        let frames = std::iter::repeat_with(move || {
+            message(
+                CAMERA_IMAGE.topic,
+                encode_frame(FrameCodec::Compact, &frame, 0),
+                0,
+            )
+        });
+        let mut stopped = DecodeAhead::new(frames, FrameCodec::Compact);
+        stopped.stop_decoding();
+        assert!(stopped.next().unwrap().1.is_none());
+        assert_eq!(stopped.ahead.len(), MESSAGES_AHEAD - 1);
     }
 }
