@@ -51,12 +51,9 @@ fn compressed_image(capture_ns: u64, data: Vec<u8>, format: &str) -> Vec<u8> {
 /// A frame message as a viewer can show it: a compact frame becomes a PNG, anything else is
 /// passed on as it is (a frame that does not decode too: the viewer says what it makes of it).
 pub fn for_viewer(bytes: &[u8]) -> std::borrow::Cow<'_, [u8]> {
-    let Ok(message) = fg::CompressedImage::decode(bytes) else {
+    let Ok(message) = compressed_image_in(bytes, COMPACT_FORMAT) else {
         return bytes.into();
     };
-    if message.format != COMPACT_FORMAT {
-        return bytes.into();
-    }
     match gray_codec::decode(&message.data) {
         Ok((width, height, pixels)) => fg::CompressedImage {
             data: png_bytes(width, height, &pixels).into(),
@@ -90,13 +87,7 @@ fn png_bytes(width: usize, height: usize, pixels: &[u8]) -> Vec<u8> {
 
 /// The grayscale frame a `foxglove.CompressedImage` holds as an 8-bit grey PNG.
 pub fn decode_png_image(bytes: &[u8]) -> Result<GrayImage, ChannelError> {
-    let message = fg::CompressedImage::decode(bytes).map_err(ChannelError::NotCompressedImage)?;
-    if message.format != "png" {
-        return Err(ChannelError::ImageFormat {
-            expected: "png",
-            found: message.format,
-        });
-    }
+    let message = compressed_image_in(bytes, "png")?;
     let decoder = PngDecoder::new(std::io::Cursor::new(&message.data[..]))?;
     if decoder.color_type() != image::ColorType::L8 {
         return Err(ChannelError::ImageFormat {
@@ -114,20 +105,28 @@ pub fn decode_png_image(bytes: &[u8]) -> Result<GrayImage, ChannelError> {
     )?)
 }
 
+/// A `foxglove.CompressedImage` whose image is in `format`.
+fn compressed_image_in(
+    bytes: &[u8],
+    format: &'static str,
+) -> Result<fg::CompressedImage, ChannelError> {
+    let message = fg::CompressedImage::decode(bytes).map_err(ChannelError::NotCompressedImage)?;
+    if message.format != format {
+        return Err(ChannelError::ImageFormat {
+            expected: format,
+            found: message.format,
+        });
+    }
+    Ok(message)
+}
+
 /// A recorded camera frame as the recording's codec stored it.
 pub fn decode_frame(codec: FrameCodec, bytes: &[u8]) -> Result<GrayImage, ChannelError> {
     match codec {
         FrameCodec::Raw => super::channels::decode_gray_image(bytes),
         FrameCodec::Png => decode_png_image(bytes),
         FrameCodec::Compact => {
-            let message =
-                fg::CompressedImage::decode(bytes).map_err(ChannelError::NotCompressedImage)?;
-            if message.format != COMPACT_FORMAT {
-                return Err(ChannelError::ImageFormat {
-                    expected: COMPACT_FORMAT,
-                    found: message.format,
-                });
-            }
+            let message = compressed_image_in(bytes, COMPACT_FORMAT)?;
             let (width, height, pixels) = gray_codec::decode(&message.data)?;
             Ok(GrayImage::from_vec(width, height, pixels)?)
         }

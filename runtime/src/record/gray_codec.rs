@@ -128,8 +128,6 @@ pub fn encode(width: usize, height: usize, pixels: &[u8]) -> Vec<u8> {
             None => write_varint(&mut out, 0),
         }
     }
-    // rANS codes last in, first out: the pixels are coded from the last, so the decoder reads
-    // them from the first.
     // Every context's coders in one table, by context × 256 + symbol (an empty context's are
     // never used).
     let coders: Vec<SymbolCoder> = tables
@@ -139,7 +137,8 @@ pub fn encode(width: usize, height: usize, pixels: &[u8]) -> Vec<u8> {
             None => (0..SYMBOLS).map(|_| SymbolCoder::new(0, SCALE)).collect(),
         })
         .collect();
-    // Four rANS states take the pixels in turn, so that each pixel's arithmetic waits on the
+    // rANS codes last in, first out: the pixels are coded from the last, so the decoder reads
+    // them from the first. Four rANS states take the pixels in turn, so that each pixel's arithmetic waits on the
     // pixel four before, not the last. They trade places after each pixel (in registers, not
     // in memory): going backwards, `states.0` is the pixel's own and `.3` the one before's. At
     // most one word a pixel, written without a branch (whether a word moves out is as random
@@ -210,14 +209,7 @@ pub fn decode(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), GrayCodecError> {
             let table = tables[context]
                 .as_ref()
                 .ok_or(GrayCodecError::EmptyContext(context))?;
-            let mut state = states.0;
-            let slot = state & (SCALE - 1);
-            let symbol = table.symbol_at[slot as usize];
-            let (start, frequency) = (
-                table.start[symbol as usize],
-                table.frequency[symbol as usize],
-            );
-            state = frequency * (state >> SCALE_BITS) + slot - start;
+            let (symbol, mut state) = table.pop(states.0);
             // Without a branch, as in the encoder; a stream that runs out reads zeros and is
             // found at the end.
             let moves_in = state < RANS_LOW;

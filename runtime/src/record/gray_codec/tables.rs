@@ -51,9 +51,9 @@ impl SymbolCoder {
 
 /// One context's frequencies, their cumulative starts, and the decoder's slot lookup.
 pub(super) struct Table {
-    pub(super) frequency: [u32; SYMBOLS],
-    pub(super) start: [u32; SYMBOLS],
-    pub(super) symbol_at: Vec<u8>,
+    frequency: [u32; SYMBOLS],
+    start: [u32; SYMBOLS],
+    symbol_at: Vec<u8>,
 }
 
 impl Table {
@@ -101,6 +101,19 @@ impl Table {
             start,
             symbol_at,
         }
+    }
+
+    /// The symbol a decoder's `state` holds, and the state without it (before moving a word
+    /// in): the inverse of [`SymbolCoder::push`].
+    #[inline(always)]
+    pub(super) fn pop(&self, state: u32) -> (u8, u32) {
+        let slot = state & (SCALE - 1);
+        let symbol = self.symbol_at[slot as usize];
+        let (start, frequency) = (
+            self.start[usize::from(symbol)],
+            self.frequency[usize::from(symbol)],
+        );
+        (symbol, frequency * (state >> SCALE_BITS) + slot - start)
     }
 
     pub(super) fn coders(&self) -> Vec<SymbolCoder> {
