@@ -1,10 +1,10 @@
 //! What recording costs the loop: the reference mission (tracking 30 s, every task, the
-//! realistic world) flown without a recording — the baseline — and with one under each frame
-//! policy (`--record`: every frame in the compact codec, telemetry, topic and decision to a
-//! zstd MCAP file; every frame as PNG; only the frames a task read; no frames), alternated in
-//! the same run. It prints the runtime
-//! loop's step time (p50, p99), the simulation's speed, the ratios to the baseline, and the
-//! file's megabytes per simulated minute.
+//! realistic world) flown with a recording under each frame policy (`--record`: every frame in
+//! the compact codec, telemetry, topic and decision to a zstd MCAP file; every frame as PNG;
+//! only the frames a task read; no frames), each between two flights without one (the
+//! baseline), in the same run. It prints the runtime loop's step time (p50, p99), the
+//! simulation's speed, the ratios to the baselines either side, and the file's megabytes per
+//! simulated minute.
 //!
 //! `cargo bench -p sitl --bench record`
 
@@ -27,94 +27,125 @@ fn main() {
     let dir = std::env::temp_dir().join(format!("qosrt-record-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a scratch folder");
     let config_files = ConfigFile::collect(&path, &model.config).expect("the config files");
-    // What each run records: nothing (the baseline), then each frame policy.
-    // The baseline again at the end: its ratio to the first is the measurement's own noise.
-    let policies: [(&str, Option<(FramePolicy, FrameCodec)>); 6] = [
-        ("without a recording (baseline)", None),
+    // What each run records: each frame policy, every one between two runs without a
+    // recording (the baseline), so that a drift of the machine's speed within a repeat falls
+    // on both sides of it.
+    let policies: [(&str, FramePolicy, FrameCodec); 4] = [
         (
             "--record, every frame (compact)",
-            Some((FramePolicy::Every, FrameCodec::Compact)),
+            FramePolicy::Every,
+            FrameCodec::Compact,
         ),
-        (
-            "--record-codec png",
-            Some((FramePolicy::Every, FrameCodec::Png)),
-        ),
+        ("--record-codec png", FramePolicy::Every, FrameCodec::Png),
         (
             "--record-frames consumed",
-            Some((FramePolicy::Consumed, FrameCodec::Compact)),
+            FramePolicy::Consumed,
+            FrameCodec::Compact,
         ),
         (
             "--record-frames none",
-            Some((FramePolicy::None, FrameCodec::Compact)),
+            FramePolicy::None,
+            FrameCodec::Compact,
         ),
-        ("without a recording, again", None),
     ];
-    // (p50 µs, p99 µs, speed ×, MB per simulated minute) per repeat, for each.
-    let mut runs: Vec<Vec<(f64, f64, f64, f64)>> = vec![Vec::new(); policies.len()];
-    for repeat in 0..REPEATS {
-        for ((_, policy), results) in policies.iter().zip(&mut runs) {
-            let file = dir.join(format!("m{repeat}.mcap"));
-            let options = SimOptions {
-                world: WorldOptions {
-                    seed: repeat,
-                    ..WorldOptions::default()
+    let fly = |seed: u64, record: Option<(FramePolicy, FrameCodec)>| {
+        let file = dir.join(format!("m{seed}.mcap"));
+        let options = SimOptions {
+            world: WorldOptions {
+                seed,
+                ..WorldOptions::default()
+            },
+            tracking_s: Some(30.0),
+            record: record.map(|(frames, codec)| SimRecording {
+                recorder: RecorderOptions {
+                    file: Some(file.clone()),
+                    frames,
+                    codec,
+                    ..RecorderOptions::default()
                 },
-                tracking_s: Some(30.0),
-                record: policy.map(|(frames, codec)| SimRecording {
-                    recorder: RecorderOptions {
-                        file: Some(file.clone()),
-                        frames,
-                        codec,
-                        ..RecorderOptions::default()
-                    },
-                    config_files: config_files.clone(),
-                }),
-                ..SimOptions::default()
-            };
-            let outcome = simulate(&model, &registry, &options).expect("the mission flies");
-            let mb_per_min = std::fs::metadata(&file).map_or(0.0, |m| m.len() as f64 / 1e6)
-                / (outcome.mission_time_s / 60.0);
-            let _ = std::fs::remove_file(&file);
-            results.push((
-                outcome.loop_step_p50_us,
-                outcome.loop_step_p99_us,
-                outcome.speedup,
-                mb_per_min,
-            ));
+                config_files: config_files.clone(),
+            }),
+            ..SimOptions::default()
+        };
+        let outcome = simulate(&model, &registry, &options).expect("the mission flies");
+        let mb_per_min = std::fs::metadata(&file).map_or(0.0, |m| m.len() as f64 / 1e6)
+            / (outcome.mission_time_s / 60.0);
+        let _ = std::fs::remove_file(&file);
+        Run {
+            p50_us: outcome.loop_step_p50_us,
+            p99_us: outcome.loop_step_p99_us,
+            speed: outcome.speedup,
+            mb_per_min,
         }
+    };
+    // Per repeat: the baselines (one more than the policies), and each policy's run.
+    let mut baselines: Vec<Vec<Run>> = Vec::new();
+    let mut recorded: Vec<Vec<Run>> = vec![Vec::new(); policies.len()];
+    for repeat in 0..REPEATS {
+        let mut around = vec![fly(repeat, None)];
+        for ((_, frames, codec), runs) in policies.iter().zip(&mut recorded) {
+            runs.push(fly(repeat, Some((*frames, *codec))));
+            around.push(fly(repeat, None));
+        }
+        baselines.push(around);
     }
     let _ = std::fs::remove_dir_all(&dir);
-    // Each policy's runs against the baseline's run of the same repeat: paired, so the
-    // machine's slower and faster spells fall on both.
     let median = |mut values: Vec<f64>| {
         values.sort_by(f64::total_cmp);
         values[values.len() / 2]
     };
-    let baseline = &runs[0];
-    for (index, ((label, policy), results)) in policies.iter().zip(&runs).enumerate() {
-        let of =
-            |pick: fn(&(f64, f64, f64, f64)) -> f64| median(results.iter().map(pick).collect());
-        let (p50, p99, speed, mb_per_min) = (of(|r| r.0), of(|r| r.1), of(|r| r.2), of(|r| r.3));
-        let ratio = |pick: fn(&(f64, f64, f64, f64)) -> f64| {
+    // A run against the mean of the two runs either side of it in its repeat, as a median
+    // over the repeats.
+    let ratio =
+        |run: &dyn Fn(usize) -> Run, sides: [&dyn Fn(usize) -> Run; 2], pick: fn(&Run) -> f64| {
             median(
-                results
-                    .iter()
-                    .zip(baseline)
-                    .map(|(r, b)| pick(r) / pick(b))
+                (0..REPEATS as usize)
+                    .map(|r| pick(&run(r)) / ((pick(&sides[0](r)) + pick(&sides[1](r))) / 2.0))
                     .collect(),
             )
         };
-        let ratios = match (index, policy) {
-            (0, _) => String::new(),
-            (_, Some(_)) => format!(
-                "; p99 x{:.2}, speed x{:.2}, {mb_per_min:.1} MB per simulated minute",
-                ratio(|r| r.1),
-                ratio(|r| r.2)
-            ),
-            (_, None) => format!("; p99 x{:.2}, speed x{:.2}", ratio(|r| r.1), ratio(|r| r.2)),
-        };
+    let all_baselines: Vec<Run> = baselines.iter().flatten().copied().collect();
+    let of = |runs: &[Run], pick: fn(&Run) -> f64| median(runs.iter().map(pick).collect());
+    println!(
+        "{:<32} loop step p50 {:>6.0} µs, p99 {:>6.0} µs, {:>5.1}x real time (median of {})",
+        "without a recording (baseline)",
+        of(&all_baselines, |r| r.p50_us),
+        of(&all_baselines, |r| r.p99_us),
+        of(&all_baselines, |r| r.speed),
+        all_baselines.len()
+    );
+    // The measurement's own noise: the middle baseline against the ones two runs away.
+    let middle = policies.len() / 2;
+    let noise = ratio(
+        &|r| baselines[r][middle],
+        [&|r| baselines[r][middle - 1], &|r| baselines[r][middle + 1]],
+        |r| r.speed,
+    );
+    println!(
+        "{:<32} speed x{noise:.2}",
+        "baseline against its neighbours"
+    );
+    for (index, ((label, _, _), runs)) in policies.iter().zip(&recorded).enumerate() {
+        let sides: [&dyn Fn(usize) -> Run; 2] =
+            [&|r| baselines[r][index], &|r| baselines[r][index + 1]];
         println!(
-            "{label:<32} loop step p50 {p50:>6.0} µs, p99 {p99:>6.0} µs, {speed:>5.1}x real time{ratios} (median of {REPEATS})"
+            "{label:<32} loop step p50 {:>6.0} µs, p99 {:>6.0} µs, {:>5.1}x real time; p99 x{:.2}, \
+             speed x{:.2}, {:.1} MB per simulated minute (median of {REPEATS})",
+            of(runs, |r| r.p50_us),
+            of(runs, |r| r.p99_us),
+            of(runs, |r| r.speed),
+            ratio(&|r| runs[r], sides, |r| r.p99_us),
+            ratio(&|r| runs[r], sides, |r| r.speed),
+            of(runs, |r| r.mb_per_min),
         );
     }
+}
+
+/// One mission's figures.
+#[derive(Clone, Copy)]
+struct Run {
+    p50_us: f64,
+    p99_us: f64,
+    speed: f64,
+    mb_per_min: f64,
 }

@@ -67,6 +67,19 @@ pub enum GrayCodecError {
     Corrupt,
 }
 
+/// The encoder's working buffers, kept by each thread that encodes: a frame's symbols and rANS
+/// words take 4 bytes a pixel, which a recorder would otherwise allocate and clear for every
+/// frame. Every slot read is written first in the same frame.
+#[derive(Default)]
+struct Scratch {
+    symbols: Vec<u16>,
+    words: Vec<u16>,
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::default();
+}
+
 /// A frame as the codec's bytes. `pixels` holds `width × height` grey levels, row by row (a
 /// frame has one pixel at least, as every `GrayImage` does).
 pub fn encode(width: usize, height: usize, pixels: &[u8]) -> Vec<u8> {
@@ -74,10 +87,13 @@ pub fn encode(width: usize, height: usize, pixels: &[u8]) -> Vec<u8> {
         width > 0 && height > 0 && pixels.len() == width * height,
         "a frame of its own size, of one pixel or more"
     );
-    // Each pixel as context × 256 + symbol: one index into the counts and the coders. The
-    // counts are kept in four parts by column, so that neighbouring pixels of one symbol do not
-    // wait on each other's count.
-    let mut symbols = vec![0u16; pixels.len()];
+    SCRATCH.with_borrow_mut(|scratch| encode_with(scratch, width, height, pixels))
+}
+
+fn encode_with(scratch: &mut Scratch, width: usize, height: usize, pixels: &[u8]) -> Vec<u8> {
+    // Each pixel as context × 256 + symbol: one index into the counts and the coders.
+    let symbols = &mut scratch.symbols;
+    symbols.resize(pixels.len(), 0);
     let mut counts = vec![0u32; COUNT_SPLIT * CONTEXTS * SYMBOLS];
     let mut above = AboveRow::new(width);
     let mut predictions = vec![0u8; width];
@@ -95,15 +111,19 @@ pub fn encode(width: usize, height: usize, pixels: &[u8]) -> Vec<u8> {
             predictions: &mut predictions,
         });
         let row_symbols = &mut symbols[y * width..(y + 1) * width];
-        for (x, (coded, ((&pixel, &prediction), &context))) in row_symbols
+        for (coded, ((&pixel, &prediction), &context)) in row_symbols
             .iter_mut()
             .zip(row.iter().zip(&predictions).zip(&above.context))
-            .enumerate()
         {
-            let symbol = zigzag(pixel.wrapping_sub(prediction));
-            let coded_as = u16::from(context) << 8 | u16::from(symbol);
-            counts[(x % COUNT_SPLIT) * CONTEXTS * SYMBOLS + usize::from(coded_as)] += 1;
-            *coded = coded_as;
+            *coded = u16::from(context) << 8 | u16::from(zigzag(pixel.wrapping_sub(prediction)));
+        }
+        // Counted apart from their computation, which runs on vector lanes; the four parts of
+        // the counts take the pixels in turn, so that neighbours of one symbol do not wait on
+        // each other's count.
+        for quad in row_symbols.chunks(COUNT_SPLIT) {
+            for (part, &coded_as) in quad.iter().enumerate() {
+                counts[part * CONTEXTS * SYMBOLS + usize::from(coded_as)] += 1;
+            }
         }
     }
     let counts: Vec<[u32; SYMBOLS]> = (0..CONTEXTS)
@@ -144,7 +164,8 @@ pub fn encode(width: usize, height: usize, pixels: &[u8]) -> Vec<u8> {
     // most one word a pixel, written without a branch (whether a word moves out is as random
     // as the noise): the slot after the last word is written and not kept.
     let mut states = (RANS_LOW, RANS_LOW, RANS_LOW, RANS_LOW);
-    let mut words = vec![0u16; symbols.len() + 1];
+    let words = &mut scratch.words;
+    words.resize(symbols.len() + 1, 0);
     let mut word_count = 0;
     for &coded_as in symbols.iter().rev() {
         let coder = &coders[usize::from(coded_as)];
