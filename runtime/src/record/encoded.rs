@@ -1,6 +1,8 @@
 //! One message, encoded for its channel, on its way to the file and the live view.
 
 use super::channels::ChannelSpec;
+use algorithms::vision::image::GrayImage;
+use std::sync::Arc;
 
 /// One message, encoded, on its way to the file.
 pub struct Encoded {
@@ -10,6 +12,9 @@ pub struct Encoded {
     /// The MCAP sequence number; `None`: the channel's count.
     pub sequence: Option<u32>,
     pub data: Vec<u8>,
+    /// A camera frame the file holds in the compact codec, which no viewer reads: the live view
+    /// sends its pixels as PNG (made from them, not decoded from `data`).
+    pub viewer_frame: Option<Arc<GrayImage>>,
 }
 
 impl Encoded {
@@ -20,6 +25,7 @@ impl Encoded {
             publish_time_ns: time_ns,
             sequence: None,
             data,
+            viewer_frame: None,
         }
     }
 }

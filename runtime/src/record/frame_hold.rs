@@ -35,6 +35,7 @@ impl DeliveredFrame {
             publish_time_ns: self.capture_ns,
             // MCAP's sequence is 32 bits; a frame index past it wraps, as it always has.
             sequence: Some(self.index as u32),
+            viewer_frame: (read && self.codec == FrameCodec::Compact).then(|| self.image.clone()),
             ..Encoded::at(spec, self.now_ns, data)
         }
     }
@@ -180,6 +181,30 @@ mod tests {
         assert_eq!((out[0].publish_time_ns, out[0].sequence), (70, Some(1)));
         let pixels = super::super::frames::decode_png_image(&out[2].data).unwrap();
         assert_eq!(pixels.data(), &[2; 12]);
+    }
+
+    #[test]
+    fn a_compact_frame_carries_its_pixels_for_the_viewer_and_a_png_or_unread_one_does_not() {
+        let compact = DeliveredFrame {
+            codec: FrameCodec::Compact,
+            ..frame(5)
+        };
+        let kept = compact.encode(true);
+        let viewer = kept
+            .viewer_frame
+            .as_ref()
+            .expect("a compact frame's pixels");
+        assert!(Arc::ptr_eq(viewer, &compact.image));
+        // The viewer's PNG holds the file's pixels.
+        let png = super::super::frames::png_image(viewer, kept.publish_time_ns);
+        let from_file =
+            super::super::frames::decode_frame(FrameCodec::Compact, &kept.data).unwrap();
+        assert_eq!(
+            super::super::frames::decode_png_image(&png).unwrap().data(),
+            from_file.data()
+        );
+        assert!(compact.encode(false).viewer_frame.is_none());
+        assert!(frame(5).encode(true).viewer_frame.is_none());
     }
 
     #[test]

@@ -48,24 +48,6 @@ fn compressed_image(capture_ns: u64, data: Vec<u8>, format: &str) -> Vec<u8> {
     .encode_to_vec()
 }
 
-/// A frame message as a viewer can show it: a compact frame becomes a PNG, anything else is
-/// passed on as it is (a frame that does not decode too: the viewer says what it makes of it).
-pub fn for_viewer(bytes: &[u8]) -> std::borrow::Cow<'_, [u8]> {
-    let Ok(message) = compressed_image_in(bytes, COMPACT_FORMAT) else {
-        return bytes.into();
-    };
-    match gray_codec::decode(&message.data) {
-        Ok((width, height, pixels)) => fg::CompressedImage {
-            data: png_bytes(width, height, &pixels).into(),
-            format: "png".into(),
-            ..message
-        }
-        .encode_to_vec()
-        .into(),
-        Err(_) => bytes.into(),
-    }
-}
-
 /// A grayscale frame as a lossless PNG in `foxglove.CompressedImage`, stamped at its capture.
 pub fn png_image(image: &GrayImage, capture_ns: u64) -> Vec<u8> {
     let png = png_bytes(image.width(), image.height(), image.data());
@@ -223,7 +205,7 @@ mod tests {
     }
 
     #[test]
-    fn a_compact_frame_comes_back_pixel_for_pixel_and_a_viewer_gets_it_as_png() {
+    fn a_compact_frame_comes_back_pixel_for_pixel() {
         let frame = noisy(64, 48);
         let compact = encode_frame(FrameCodec::Compact, &frame, 7);
         let message = fg::CompressedImage::decode(&compact[..]).unwrap();
@@ -231,17 +213,7 @@ mod tests {
         assert_eq!(message.timestamp.unwrap().nsec(), 7);
         let back = decode_frame(FrameCodec::Compact, &compact).unwrap();
         assert_eq!(back.data(), frame.data());
-        // The viewer's copy: a PNG of the same pixels and stamp, decoded by the PNG decoder.
-        let viewed = for_viewer(&compact);
-        let png = fg::CompressedImage::decode(&viewed[..]).unwrap();
-        assert_eq!(
-            (png.format.as_str(), png.timestamp),
-            ("png", message.timestamp)
-        );
-        assert_eq!(decode_png_image(&viewed).unwrap().data(), frame.data());
-        // A PNG frame goes to the viewer as it is.
         let as_png = encode_frame(FrameCodec::Png, &frame, 7);
-        assert_eq!(for_viewer(&as_png), &as_png[..]);
         // A frame under the other codec's name is refused, naming both.
         let error = decode_frame(FrameCodec::Compact, &as_png).unwrap_err();
         assert!(

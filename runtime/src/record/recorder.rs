@@ -524,10 +524,9 @@ impl LiveServer {
     fn log(&mut self, message: &Encoded) {
         if let Some(channel) = self.channel(message.spec) {
             // A viewer shows PNG frames, whatever the file stores them as.
-            let data = if message.spec.topic == ch::CAMERA_IMAGE.topic {
-                super::frames::for_viewer(&message.data)
-            } else {
-                message.data.as_slice().into()
+            let data: std::borrow::Cow<'_, [u8]> = match &message.viewer_frame {
+                Some(image) => super::frames::png_image(image, message.publish_time_ns).into(),
+                None => message.data.as_slice().into(),
             };
             channel.log_with_meta(
                 &data,
