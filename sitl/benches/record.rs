@@ -95,16 +95,26 @@ fn main() {
         values.sort_by(f64::total_cmp);
         values[values.len() / 2]
     };
-    // A run against the mean of the two runs either side of it in its repeat, as a median
-    // over the repeats.
-    let ratio =
+    // A run against the mean of the two runs either side of it in its repeat, one ratio a
+    // repeat, sorted.
+    let ratios =
         |run: &dyn Fn(usize) -> Run, sides: [&dyn Fn(usize) -> Run; 2], pick: fn(&Run) -> f64| {
-            median(
-                (0..REPEATS as usize)
-                    .map(|r| pick(&run(r)) / ((pick(&sides[0](r)) + pick(&sides[1](r))) / 2.0))
-                    .collect(),
-            )
+            let mut ratios: Vec<f64> = (0..REPEATS as usize)
+                .map(|r| pick(&run(r)) / ((pick(&sides[0](r)) + pick(&sides[1](r))) / 2.0))
+                .collect();
+            ratios.sort_by(f64::total_cmp);
+            ratios
         };
+    // The median and the quartiles: how far one repeat's ratio strays.
+    let spread = |ratios: Vec<f64>| {
+        let at = |q: f64| ratios[((ratios.len() - 1) as f64 * q).round() as usize];
+        format!(
+            "x{:.2} (quartiles {:.2}–{:.2})",
+            at(0.5),
+            at(0.25),
+            at(0.75)
+        )
+    };
     let all_baselines: Vec<Run> = baselines.iter().flatten().copied().collect();
     let of = |runs: &[Run], pick: fn(&Run) -> f64| median(runs.iter().map(pick).collect());
     println!(
@@ -117,26 +127,27 @@ fn main() {
     );
     // The measurement's own noise: the middle baseline against the ones two runs away.
     let middle = policies.len() / 2;
-    let noise = ratio(
+    let noise = ratios(
         &|r| baselines[r][middle],
         [&|r| baselines[r][middle - 1], &|r| baselines[r][middle + 1]],
         |r| r.speed,
     );
     println!(
-        "{:<32} speed x{noise:.2}",
-        "baseline against its neighbours"
+        "{:<32} speed {}",
+        "baseline against its neighbours",
+        spread(noise)
     );
     for (index, ((label, _, _), runs)) in policies.iter().zip(&recorded).enumerate() {
         let sides: [&dyn Fn(usize) -> Run; 2] =
             [&|r| baselines[r][index], &|r| baselines[r][index + 1]];
         println!(
             "{label:<32} loop step p50 {:>6.0} µs, p99 {:>6.0} µs, {:>5.1}x real time; p99 x{:.2}, \
-             speed x{:.2}, {:.1} MB per simulated minute (median of {REPEATS})",
+             speed {}, {:.1} MB per simulated minute (median of {REPEATS})",
             of(runs, |r| r.p50_us),
             of(runs, |r| r.p99_us),
             of(runs, |r| r.speed),
-            ratio(&|r| runs[r], sides, |r| r.p99_us),
-            ratio(&|r| runs[r], sides, |r| r.speed),
+            median(ratios(&|r| runs[r], sides, |r| r.p99_us)),
+            spread(ratios(&|r| runs[r], sides, |r| r.speed)),
             of(runs, |r| r.mb_per_min),
         );
     }
