@@ -148,6 +148,9 @@ fn a_foxglove_client_sees_the_channels_and_receives_what_is_logged() {
         }
         let image = CompressedImage::decode(&data[13..]).unwrap();
         assert_eq!(image.format, "png");
+        // Stamped at the frame's capture, as the file's message is.
+        let stamp = image.timestamp.unwrap();
+        assert_eq!((stamp.sec(), stamp.nsec()), (12, 900_000_000));
         let decoded = image::load_from_memory(&image.data).unwrap().into_luma8();
         assert_eq!(decoded.dimensions(), (64, 48));
         assert_eq!(decoded.into_raw(), pixels);
