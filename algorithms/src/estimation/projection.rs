@@ -137,6 +137,34 @@ pub fn pad_relative_to_uav_ned_m(
     Ok(relative)
 }
 
+/// The yaw (from north towards east) of the line on the pad's plane that the image shows through
+/// pixel (u, v) along `orientation_rad` (from the image's u axis towards v), for the camera of
+/// [`pad_relative_to_uav_ned_m`]: a line in an undistorted image is a line on the plane, so two of
+/// its points either side of (u, v), projected, give its direction.
+pub fn ground_line_yaw_rad(
+    camera: &impl CameraModel,
+    attitude: &Attitude,
+    altitude_above_pad_m: f64,
+    [u_px, v_px]: [f64; 2],
+    orientation_rad: f64,
+) -> Result<f64, ProjectionError> {
+    // Far enough apart that a pixel's rounding moves the yaw by little, near enough that both
+    // points stay on the pad's plane in view.
+    const HALF_SPAN_PX: f64 = 20.0;
+    let (sin, cos) = orientation_rad.sin_cos();
+    let at = |k: f64| {
+        pad_relative_to_uav_ned_m(
+            camera,
+            attitude,
+            altitude_above_pad_m,
+            u_px + k * HALF_SPAN_PX * cos,
+            v_px + k * HALF_SPAN_PX * sin,
+        )
+    };
+    let direction = at(1.0)? - at(-1.0)?;
+    Ok(direction.y.atan2(direction.x))
+}
+
 /// How far a vision fix from [`pad_relative_to_uav_ned_m`] may be off: a floor (the pad's own
 /// sway, the detector's pixel error at close range) plus an angular error that grows with the
 /// height (the attitude's noise and timing, the frame's latency and blur). A fix from 7.5 m is
@@ -270,6 +298,52 @@ mod tests {
         }
         let pure_roll = Attitude::new(f64::to_radians(20.0), 0.0, 1.0);
         assert!((pure_roll.tilt_rad().to_degrees() - 20.0).abs() < 1e-9);
+    }
+
+    /// A line drawn on the ground, projected into the image by the camera model, comes back
+    /// with its yaw, whatever the vehicle's attitude.
+    #[test]
+    fn a_ground_line_seen_in_the_image_comes_back_with_its_yaw() {
+        let camera =
+            crate::camera::PinholeCamera::from_fov(640, 480, 80f64.to_radians()).expect("a camera");
+        for (roll_deg, pitch_deg, yaw_deg) in
+            [(0.0, 0.0, 0.0), (12.0, -8.0, 40.0), (-20.0, 15.0, -150.0)]
+        {
+            let (roll, pitch, yaw) = (
+                f64::to_radians(roll_deg),
+                f64::to_radians(pitch_deg),
+                f64::to_radians(yaw_deg),
+            );
+            let altitude_m = 4.0;
+            let pose = CameraPose::downward(Vector3::zeros(), roll, pitch, yaw);
+            let attitude = Attitude::new(roll, pitch, yaw);
+            // A ground point in view: straight below the camera's axis, near enough.
+            let centre = pose.camera_to_world.rotation * Vector3::z();
+            let centre = centre * (altitude_m / centre.z);
+            for line_yaw_deg in [0.0, 35.0, 90.0, -120.0, 179.0] {
+                let line_yaw = f64::to_radians(line_yaw_deg);
+                let along = Vector3::new(line_yaw.cos(), line_yaw.sin(), 0.0) * 0.3;
+                let pixel = |p: Vector3<f64>| {
+                    camera
+                        .project_world(&pose, &Point3::from(p))
+                        .expect("in front of the camera")
+                };
+                let (u0, v0) = pixel(centre);
+                let (u1, v1) = pixel(centre + along);
+                let orientation = (v1 - v0).atan2(u1 - u0);
+                let found =
+                    ground_line_yaw_rad(&camera, &attitude, altitude_m, [u0, v0], orientation)
+                        .unwrap();
+                let error_deg = (found - line_yaw)
+                    .sin()
+                    .atan2((found - line_yaw).cos())
+                    .to_degrees();
+                assert!(
+                    error_deg.abs() < 0.1,
+                    "attitude {roll_deg}/{pitch_deg}/{yaw_deg}°, line {line_yaw_deg}°: {error_deg}°"
+                );
+            }
+        }
     }
 
     /// The angular part is what a camera tilted by the angle std sees: the fix of a pixel

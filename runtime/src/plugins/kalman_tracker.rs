@@ -15,7 +15,9 @@ use algorithms::estimation::kalman::{FixOutcome, MotionInput, Tracker, TrackerCo
 use algorithms::estimation::platform_velocity::{
     PlatformFix, PlatformVelocityConfig, PlatformVelocityEstimator,
 };
-use algorithms::estimation::projection::{pad_relative_to_uav_ned_m, FixNoise};
+use algorithms::estimation::projection::{
+    ground_line_yaw_rad, pad_relative_to_uav_ned_m, FixNoise,
+};
 
 /// How far back a frame's capture can be looked up (a frame older than this is projected
 /// with the oldest attitude kept).
@@ -37,6 +39,19 @@ struct Params {
     /// …plus this angle's worth of the height (attitude noise and timing, latency, blur).
     #[serde(default = "default_fix_angle_std")]
     fix_angle_std_deg: f64,
+    /// Put the platform's velocity along the heading the marker's orientation gives, which
+    /// does not lag a turn as the direction of the filtered velocity does.
+    #[serde(default)]
+    heading_from_marker: bool,
+    /// With `heading_from_marker`: the angle from the platform's direction of travel to the
+    /// pad's x axis as the detector reports it, from north towards east. 90 for the built-in
+    /// world's pad, whose x axis points to the tractor's right.
+    #[serde(default = "default_pad_x_axis_from_heading")]
+    pad_x_axis_from_heading_deg: f64,
+}
+
+fn default_pad_x_axis_from_heading() -> f64 {
+    90.0
 }
 
 fn default_process_noise() -> f64 {
@@ -69,6 +84,8 @@ struct TrackerTask {
     last_fix_time_s: Option<f64>,
     /// The vehicle's recent attitude and height, to project a fix as at its capture.
     attitude_history: AttitudeHistory,
+    /// With the heading from the marker: the pad's x axis from the direction of travel.
+    pad_x_axis_from_heading_rad: Option<f64>,
     vehicle: Subscriber<VehicleState>,
     markers: Subscriber<MarkerObservation>,
     output: Publisher<RelativeState>,
@@ -79,6 +96,12 @@ impl TrackerTask {
         let bad = |e: &dyn std::fmt::Display| TaskError::Params(e.to_string());
         let fix_noise = FixNoise::new(params.fix_std_m, params.fix_angle_std_deg.to_radians())
             .map_err(|e| bad(&e))?;
+        if !params.pad_x_axis_from_heading_deg.is_finite() {
+            return Err(bad(&format!(
+                "pad_x_axis_from_heading_deg = {} must be a finite angle in degrees",
+                params.pad_x_axis_from_heading_deg
+            )));
+        }
         // The mission's one camera: fixes are projected with its intrinsics and its mount.
         let camera_settings = &build.config().camera;
         let camera = camera_settings.pinhole().map_err(|e| bad(&e))?;
@@ -107,6 +130,9 @@ impl TrackerTask {
             .map_err(|e| bad(&e))?,
             last_fix_time_s: None,
             attitude_history: AttitudeHistory::new(ATTITUDE_HISTORY_S),
+            pad_x_axis_from_heading_rad: params
+                .heading_from_marker
+                .then(|| params.pad_x_axis_from_heading_deg.to_radians()),
             vehicle: build.input(VEHICLE_STATE)?,
             markers: build.input(LANDING_MARKER)?,
             output: build.output(RELATIVE_STATE)?,
@@ -159,18 +185,31 @@ impl Task for TrackerTask {
                         gimbal_attitude: state.gimbal_attitude,
                     });
                 // A gimballed camera whose gimbal has not reported: the fix cannot be placed.
-                let projected = self
+                let camera_attitude = self
                     .camera_mount
-                    .camera_attitude(&at_capture.attitude, at_capture.gimbal_attitude.as_ref())
-                    .map(|camera_attitude| {
-                        pad_relative_to_uav_ned_m(
-                            &self.camera,
-                            &camera_attitude,
-                            at_capture.height_above_pad_m,
-                            u,
-                            v,
-                        )
-                    });
+                    .camera_attitude(&at_capture.attitude, at_capture.gimbal_attitude.as_ref());
+                let projected = camera_attitude.as_ref().map(|camera_attitude| {
+                    pad_relative_to_uav_ned_m(
+                        &self.camera,
+                        camera_attitude,
+                        at_capture.height_above_pad_m,
+                        u,
+                        v,
+                    )
+                });
+                // The platform's heading: the pad's x axis on the ground, less its mounting.
+                let platform_yaw_rad = camera_attitude.as_ref().and_then(|camera_attitude| {
+                    let from_heading_rad = self.pad_x_axis_from_heading_rad?;
+                    let axis_yaw_rad = ground_line_yaw_rad(
+                        &self.camera,
+                        camera_attitude,
+                        at_capture.height_above_pad_m,
+                        observation.centre_px,
+                        observation.orientation_rad?,
+                    )
+                    .ok()?;
+                    Some(axis_yaw_rad - from_heading_rad)
+                });
                 match projected {
                     Some(Ok(pad_relative)) => {
                         let capture_time_s = message.stamp.as_secs_f64();
@@ -214,7 +253,7 @@ impl Task for TrackerTask {
                                     horizontal_variance_m2: fix_variance_m2,
                                     // As the fix: at the frame's capture.
                                     uav_velocity_ned_m_s: at_capture.velocity_ned_m_s,
-                                    platform_yaw_rad: None,
+                                    platform_yaw_rad,
                                 });
                             }
                         }
@@ -262,6 +301,21 @@ mod tests {
         }
         let defaults = task("").unwrap();
         assert!(defaults.fix_noise.variance_m2(1.0) < defaults.fix_noise.variance_m2(7.5) / 20.0);
+    }
+
+    #[test]
+    fn the_heading_from_the_marker_is_taken_only_when_asked_with_its_mounting() {
+        assert_eq!(task("").unwrap().pad_x_axis_from_heading_rad, None);
+        let asked =
+            task("heading_from_marker = true\npad_x_axis_from_heading_deg = -30.0").unwrap();
+        let mounting_rad = asked.pad_x_axis_from_heading_rad.unwrap();
+        assert!((mounting_rad.to_degrees() + 30.0).abs() < 1e-9);
+        let Err(TaskError::Params(message)) =
+            task("heading_from_marker = true\npad_x_axis_from_heading_deg = nan")
+        else {
+            panic!("a NaN mounting was accepted");
+        };
+        assert!(message.contains("pad_x_axis_from_heading_deg"), "{message}");
     }
 
     #[test]
