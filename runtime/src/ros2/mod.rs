@@ -118,8 +118,10 @@ pub struct FleetStatus {
 }
 
 /// How long the mission waits for its node to be ready: a DDS participant that has not come
-/// up by then is a named error, not a mission that never starts.
-const START_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(15);
+/// up by then is a named error, not a mission that never starts. 30 s: on a 2-core machine
+/// running two other missions at full speed (the fleet test), RustDDS's threads were starved
+/// past 15 s in two CI runs of three.
+const START_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(30);
 
 /// How long the node's thread waits for the loop before it looks for requests again.
 const POLL_PERIOD: std::time::Duration = std::time::Duration::from_millis(10);
