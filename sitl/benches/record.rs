@@ -96,17 +96,16 @@ fn main() {
         values[values.len() / 2]
     };
     // A run against the mean of the two runs either side of it in its repeat, one ratio a
-    // repeat, sorted.
+    // repeat.
     let ratios =
         |run: &dyn Fn(usize) -> Run, sides: [&dyn Fn(usize) -> Run; 2], pick: fn(&Run) -> f64| {
-            let mut ratios: Vec<f64> = (0..REPEATS as usize)
+            (0..REPEATS as usize)
                 .map(|r| pick(&run(r)) / ((pick(&sides[0](r)) + pick(&sides[1](r))) / 2.0))
-                .collect();
-            ratios.sort_by(f64::total_cmp);
-            ratios
+                .collect::<Vec<f64>>()
         };
     // The median and the quartiles: how far one repeat's ratio strays.
-    let spread = |ratios: Vec<f64>| {
+    let spread = |mut ratios: Vec<f64>| {
+        ratios.sort_by(f64::total_cmp);
         let at = |q: f64| ratios[((ratios.len() - 1) as f64 * q).round() as usize];
         format!(
             "x{:.2} (quartiles {:.2}–{:.2})",

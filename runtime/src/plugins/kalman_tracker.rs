@@ -16,8 +16,9 @@ use algorithms::estimation::platform_velocity::{
     PlatformFix, PlatformVelocityConfig, PlatformVelocityEstimator,
 };
 use algorithms::estimation::projection::{
-    ground_line_yaw_rad, pad_relative_to_uav_ned_m, FixNoise,
+    ground_line_yaw_rad, pad_relative_to_uav_ned_m, Attitude, FixNoise,
 };
+use algorithms::vision::landing_marker::LandingMarkerObservation;
 
 /// How far back a frame's capture can be looked up (a frame older than this is projected
 /// with the oldest attitude kept).
@@ -140,6 +141,28 @@ impl TrackerTask {
     }
 }
 
+impl TrackerTask {
+    /// The platform's heading from a fix, where the marker's heading is asked for and the
+    /// detector saw the pad's orientation: the pad's x axis on the ground, less its mounting.
+    fn platform_yaw_rad(
+        &self,
+        camera_attitude: &Attitude,
+        height_above_pad_m: f64,
+        observation: &LandingMarkerObservation,
+    ) -> Option<f64> {
+        let from_heading_rad = self.pad_x_axis_from_heading_rad?;
+        let axis_yaw_rad = ground_line_yaw_rad(
+            &self.camera,
+            camera_attitude,
+            height_above_pad_m,
+            observation.centre_px,
+            observation.orientation_rad?,
+        )
+        .ok()?;
+        Some(axis_yaw_rad - from_heading_rad)
+    }
+}
+
 impl Task for TrackerTask {
     fn step(&mut self, ctx: &mut TaskContext<'_>) -> Result<(), TaskError> {
         let (vehicle, markers, output) = (&mut self.vehicle, &mut self.markers, &self.output);
@@ -197,19 +220,6 @@ impl Task for TrackerTask {
                         v,
                     )
                 });
-                // The platform's heading: the pad's x axis on the ground, less its mounting.
-                let platform_yaw_rad = camera_attitude.as_ref().and_then(|camera_attitude| {
-                    let from_heading_rad = self.pad_x_axis_from_heading_rad?;
-                    let axis_yaw_rad = ground_line_yaw_rad(
-                        &self.camera,
-                        camera_attitude,
-                        at_capture.height_above_pad_m,
-                        observation.centre_px,
-                        observation.orientation_rad?,
-                    )
-                    .ok()?;
-                    Some(axis_yaw_rad - from_heading_rad)
-                });
                 match projected {
                     Some(Ok(pad_relative)) => {
                         let capture_time_s = message.stamp.as_secs_f64();
@@ -247,6 +257,14 @@ impl Task for TrackerTask {
                             // learning from the last one reported would fly the vehicle after
                             // a platform that is not there once the link is back.
                             if state_fresh {
+                                let platform_yaw_rad =
+                                    camera_attitude.as_ref().and_then(|camera_attitude| {
+                                        self.platform_yaw_rad(
+                                            camera_attitude,
+                                            at_capture.height_above_pad_m,
+                                            observation,
+                                        )
+                                    });
                                 let _ = self.platform.update(&PlatformFix {
                                     time_s: capture_time_s,
                                     uav_relative_ned_m: uav_relative,

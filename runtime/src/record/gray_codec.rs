@@ -158,11 +158,12 @@ fn encode_with(scratch: &mut Scratch, width: usize, height: usize, pixels: &[u8]
         })
         .collect();
     // rANS codes last in, first out: the pixels are coded from the last, so the decoder reads
-    // them from the first. Four rANS states take the pixels in turn, so that each pixel's arithmetic waits on the
-    // pixel four before, not the last. They trade places after each pixel (in registers, not
-    // in memory): going backwards, `states.0` is the pixel's own and `.3` the one before's. At
-    // most one word a pixel, written without a branch (whether a word moves out is as random
-    // as the noise): the slot after the last word is written and not kept.
+    // them from the first. Four rANS states take the pixels in turn, so that each pixel's
+    // arithmetic waits on the pixel four before, not the last. They trade places after each
+    // pixel (in registers, not in memory): going backwards, `states.0` is the pixel's own and
+    // `.3` the one before's. At most one word a pixel, written without a branch (whether a word
+    // moves out is as random as the noise): the slot after the last word is written and not
+    // kept.
     let mut states = (RANS_LOW, RANS_LOW, RANS_LOW, RANS_LOW);
     let words = &mut scratch.words;
     words.resize(symbols.len() + 1, 0);
