@@ -6,7 +6,7 @@
 mod common;
 use common::{qosrt, qosrt_spawn, report_of, short_mission};
 #[cfg(feature = "gstreamer")]
-use common::{qosrt_run, Px4};
+use common::{qosrt_run, try_report_of, Px4};
 
 #[cfg(feature = "gstreamer")]
 use serde_json::Value;
@@ -278,8 +278,11 @@ fn the_real_px4_lands_on_the_moving_pad_the_world_renders() {
             "--json",
         ],
     );
-    let (run_report, run_stderr) = report_of(run, Duration::from_secs(130));
+    let run = try_report_of(run, Duration::from_secs(130));
     let (world_report, world_stderr) = report_of(world, Duration::from_secs(30));
+    let (run_report, run_stderr) = run.unwrap_or_else(|message| {
+        panic!("qosrt run: {message}\nthe world: {world_report:#}\n{world_stderr}")
+    });
     assert_eq!(run_report["autopilot"], "PX4");
     let error_m = assert_landed_within(&world_report, 0.3, &world_stderr);
     assert_flew_by_vision(&run_report, &run_stderr);

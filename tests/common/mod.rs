@@ -89,7 +89,13 @@ pub fn short_mission(dir: &Path, tracking_s: f64) -> PathBuf {
 
 /// Waits for qosrt to exit (killing it after `limit`) and parses its JSON report; stderr is
 /// handed back for messages.
-pub fn report_of(mut child: Child, limit: Duration) -> (Value, String) {
+pub fn report_of(child: Child, limit: Duration) -> (Value, String) {
+    try_report_of(child, limit).unwrap_or_else(|message| panic!("{message}"))
+}
+
+/// As `report_of`, but a missing report is handed back, with the exit status and stderr, for
+/// a test that has the other process's side of the story to tell too.
+pub fn try_report_of(mut child: Child, limit: Duration) -> Result<(Value, String), String> {
     let started = Instant::now();
     while child.try_wait().unwrap().is_none() {
         if started.elapsed() > limit {
@@ -100,13 +106,13 @@ pub fn report_of(mut child: Child, limit: Duration) -> (Value, String) {
     }
     let output = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
-    let report = serde_json::from_slice(&output.stdout).unwrap_or_else(|e| {
-        panic!(
+    match serde_json::from_slice(&output.stdout) {
+        Ok(report) => Ok((report, stderr)),
+        Err(e) => Err(format!(
             "no JSON report ({e}), exit {:?}; stderr:\n{stderr}",
             output.status
-        )
-    });
-    (report, stderr)
+        )),
+    }
 }
 
 /// Starts `qosrt SUBCOMMAND CONFIG ARGS…` in the background, its output piped.

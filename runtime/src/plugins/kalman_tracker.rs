@@ -49,6 +49,14 @@ struct Params {
     /// world's pad, whose x axis points to the tractor's right.
     #[serde(default = "default_pad_x_axis_from_heading")]
     pad_x_axis_from_heading_deg: f64,
+    /// The platform's velocity is given out only once known to this, m/s (see
+    /// `PlatformVelocityConfig::max_velocity_std_m_s`).
+    #[serde(default = "default_platform_velocity_max_std")]
+    platform_velocity_max_std_m_s: f64,
+}
+
+fn default_platform_velocity_max_std() -> f64 {
+    PlatformVelocityConfig::default().max_velocity_std_m_s
 }
 
 fn default_pad_x_axis_from_heading() -> f64 {
@@ -126,6 +134,7 @@ impl TrackerTask {
             platform: PlatformVelocityEstimator::new(PlatformVelocityConfig {
                 // Fixes come 2 s apart at the slowest detection rate (0.5 fps).
                 max_gap_s: 3.0,
+                max_velocity_std_m_s: params.platform_velocity_max_std_m_s,
                 ..PlatformVelocityConfig::default()
             })
             .map_err(|e| bad(&e))?,
@@ -334,6 +343,21 @@ mod tests {
             panic!("a NaN mounting was accepted");
         };
         assert!(message.contains("pad_x_axis_from_heading_deg"), "{message}");
+    }
+
+    #[test]
+    fn a_bad_bound_on_the_platform_velocity_is_named() {
+        for params in [
+            "platform_velocity_max_std_m_s = 0.0",
+            "platform_velocity_max_std_m_s = -1.0",
+            "platform_velocity_max_std_m_s = inf",
+        ] {
+            let Err(TaskError::Params(message)) = task(params) else {
+                panic!("{params} was accepted");
+            };
+            assert!(message.contains("max_velocity_std_m_s"), "{message}");
+        }
+        assert!(task("platform_velocity_max_std_m_s = 0.8").is_ok());
     }
 
     #[test]
