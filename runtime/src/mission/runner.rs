@@ -331,8 +331,9 @@ impl<S: TaskScheduler> MissionRunner<S> {
         if let Some(mode) = landing.map(|l| l.mode) {
             if self.last_landing_mode != Some(mode) {
                 self.last_landing_mode = Some(mode);
-                tracing::info!(time_s = now_s, "landing: {mode:?}");
-                self.note(now_s, format!("landing: {mode:?}"));
+                let event = format!("landing: {mode:?}");
+                tracing::info!(time_s = now_s, "{event}");
+                self.note(now_s, event);
             }
         }
         let telemetry = self.link.telemetry();

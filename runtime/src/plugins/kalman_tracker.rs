@@ -346,31 +346,29 @@ mod tests {
     }
 
     #[test]
-    fn a_bad_bound_on_the_platform_velocity_is_named() {
-        for params in [
-            "platform_velocity_max_std_m_s = 0.0",
-            "platform_velocity_max_std_m_s = -1.0",
-            "platform_velocity_max_std_m_s = inf",
+    fn bad_params_are_named() {
+        for (params, named) in [
+            ("fix_std_m = -0.1", "fix's noise"),
+            ("fix_angle_std_deg = -1.0", "fix's noise"),
+            ("fix_std_m = 0.0\nfix_angle_std_deg = 0.0", "fix's noise"),
+            (
+                "platform_velocity_max_std_m_s = 0.0",
+                "max_velocity_std_m_s",
+            ),
+            (
+                "platform_velocity_max_std_m_s = -1.0",
+                "max_velocity_std_m_s",
+            ),
+            (
+                "platform_velocity_max_std_m_s = inf",
+                "max_velocity_std_m_s",
+            ),
         ] {
             let Err(TaskError::Params(message)) = task(params) else {
                 panic!("{params} was accepted");
             };
-            assert!(message.contains("max_velocity_std_m_s"), "{message}");
+            assert!(message.contains(named), "{params}: {message}");
         }
         assert!(task("platform_velocity_max_std_m_s = 0.8").is_ok());
-    }
-
-    #[test]
-    fn a_bad_fix_noise_is_named() {
-        for params in [
-            "fix_std_m = -0.1",
-            "fix_angle_std_deg = -1.0",
-            "fix_std_m = 0.0\nfix_angle_std_deg = 0.0",
-        ] {
-            let Err(TaskError::Params(message)) = task(params) else {
-                panic!("{params} was accepted");
-            };
-            assert!(message.contains("fix's noise"), "{message}");
-        }
     }
 }
