@@ -45,6 +45,10 @@ const MAX_PIXELS: u64 = 1 << 26;
 const CONTEXTS: usize = 12;
 /// The encoder's counts are kept in this many parts (by column), summed at the end.
 const COUNT_SPLIT: usize = 4;
+/// A pixel is coded as context × 256 + symbol: below this power of two, so that an index
+/// masked by it needs no bounds check in the encoder's two loops over every pixel.
+const CODED_SLOTS: usize = 4096;
+const _: () = assert!(CONTEXTS * SYMBOLS <= CODED_SLOTS);
 /// A pixel's context is the number of these its activity reaches: steps of 2^(2/3) in the
 /// summed absolute differences of its neighbours (their quantisation is the format's, so they
 /// are written out rather than computed).
@@ -94,7 +98,7 @@ fn encode_with(scratch: &mut Scratch, width: usize, height: usize, pixels: &[u8]
     // Each pixel as context × 256 + symbol: one index into the counts and the coders.
     let symbols = &mut scratch.symbols;
     symbols.resize(pixels.len(), 0);
-    let mut counts = vec![0u32; COUNT_SPLIT * CONTEXTS * SYMBOLS];
+    let mut counts = [[0u32; CODED_SLOTS]; COUNT_SPLIT];
     let mut above = AboveRow::new(width);
     let mut predictions = vec![0u8; width];
     for (y, row) in pixels.chunks_exact(width).enumerate() {
@@ -120,21 +124,19 @@ fn encode_with(scratch: &mut Scratch, width: usize, height: usize, pixels: &[u8]
         // Counted apart from their computation, which runs on vector lanes; the four parts of
         // the counts take the pixels in turn, so that neighbours of one symbol do not wait on
         // each other's count.
-        for quad in row_symbols.chunks(COUNT_SPLIT) {
-            for (part, &coded_as) in quad.iter().enumerate() {
-                counts[part * CONTEXTS * SYMBOLS + usize::from(coded_as)] += 1;
+        let quads = row_symbols.chunks_exact(COUNT_SPLIT);
+        let rest = quads.remainder();
+        for quad in quads {
+            for (part, &coded_as) in counts.iter_mut().zip(quad) {
+                part[usize::from(coded_as) & (CODED_SLOTS - 1)] += 1;
             }
+        }
+        for (part, &coded_as) in counts.iter_mut().zip(rest) {
+            part[usize::from(coded_as) & (CODED_SLOTS - 1)] += 1;
         }
     }
     let counts: Vec<[u32; SYMBOLS]> = (0..CONTEXTS)
-        .map(|c| {
-            std::array::from_fn(|s| {
-                counts[c * SYMBOLS + s..]
-                    .iter()
-                    .step_by(CONTEXTS * SYMBOLS)
-                    .sum()
-            })
-        })
+        .map(|c| std::array::from_fn(|s| counts.iter().map(|part| part[c * SYMBOLS + s]).sum()))
         .collect();
     let tables: Vec<Option<Table>> = counts.iter().map(Table::from_counts).collect();
 
@@ -148,15 +150,17 @@ fn encode_with(scratch: &mut Scratch, width: usize, height: usize, pixels: &[u8]
             None => write_varint(&mut out, 0),
         }
     }
-    // Every context's coders in one table, by context × 256 + symbol (an empty context's are
-    // never used).
-    let coders: Vec<SymbolCoder> = tables
-        .iter()
-        .flat_map(|table| match table {
-            Some(table) => table.coders(),
-            None => (0..SYMBOLS).map(|_| SymbolCoder::new(0, SCALE)).collect(),
-        })
-        .collect();
+    // Every context's coders in one table, by context × 256 + symbol (an empty context's, and
+    // the slots past the last context, are never used).
+    let mut coders: Box<[SymbolCoder; CODED_SLOTS]> =
+        Box::new(std::array::from_fn(|_| SymbolCoder::new(0, SCALE)));
+    for (slots, table) in coders.chunks_mut(SYMBOLS).zip(&tables) {
+        if let Some(table) = table {
+            for (slot, coder) in slots.iter_mut().zip(table.coders()) {
+                *slot = coder;
+            }
+        }
+    }
     // rANS codes last in, first out: the pixels are coded from the last, so the decoder reads
     // them from the first. Four rANS states take the pixels in turn, so that each pixel's
     // arithmetic waits on the pixel four before, not the last. They trade places after each
@@ -169,7 +173,7 @@ fn encode_with(scratch: &mut Scratch, width: usize, height: usize, pixels: &[u8]
     words.resize(symbols.len() + 1, 0);
     let mut word_count = 0;
     for &coded_as in symbols.iter().rev() {
-        let coder = &coders[usize::from(coded_as)];
+        let coder = &coders[usize::from(coded_as) & (CODED_SLOTS - 1)];
         let mut state = states.0;
         let moves_out = state >= coder.x_max;
         words[word_count] = state as u16;

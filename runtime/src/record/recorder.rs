@@ -421,6 +421,12 @@ pub struct BatteryEstimate {
 /// How long queued messages may wait before the chunk is closed: a crash loses at most this
 /// much of the flight.
 const FLUSH_PERIOD: Duration = Duration::from_secs(1);
+/// How long the writer thread lets telemetry gather once it has written all it was given,
+/// before it waits on the queue again. Waking a waiting thread is a system call on the
+/// sender's side, which every bus message of the loop would otherwise pay: gathered, a step's
+/// messages cost one wake (`cargo bench -p sitl --bench record`, `--record-frames none`). A
+/// frame is waited for at once: its encoding then fills the time the loop leaves a core idle.
+const GATHER_PERIOD: Duration = Duration::from_millis(1);
 
 fn write_loop(
     jobs: mpsc::Receiver<Work>,
@@ -429,8 +435,20 @@ fn write_loop(
 ) -> Result<RecordingSummary, RecordError> {
     let mut last_flush = Instant::now();
     let mut hold = FrameHold::new(FLUSH_PERIOD);
+    let mut last_was_frame = false;
     loop {
-        match jobs.recv_timeout(FLUSH_PERIOD) {
+        let work = match jobs.try_recv() {
+            Ok(work) => Ok(work),
+            Err(mpsc::TryRecvError::Disconnected) => Err(mpsc::RecvTimeoutError::Disconnected),
+            Err(mpsc::TryRecvError::Empty) => {
+                if !last_was_frame {
+                    std::thread::sleep(GATHER_PERIOD);
+                }
+                jobs.recv_timeout(FLUSH_PERIOD)
+            }
+        };
+        last_was_frame = matches!(work, Ok(Work::Frame(..)));
+        match work {
             Ok(Work::Job(job)) => job().into_iter().for_each(|m| hold.message(m)),
             Ok(Work::Frame(frame, read)) => hold.frame(frame, read),
             Ok(Work::FrameRead { index, read }) => hold.mark(index, read),
