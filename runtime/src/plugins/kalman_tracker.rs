@@ -53,6 +53,15 @@ struct Params {
     /// `PlatformVelocityConfig::max_velocity_std_m_s`).
     #[serde(default = "default_platform_velocity_max_std")]
     platform_velocity_max_std_m_s: f64,
+    /// After the last fix the platform's velocity is carried round at its measured rate of
+    /// turn for at most this long, seconds (see
+    /// `PlatformVelocityConfig::max_turn_extrapolation_s`); 0: held as the last fix left it.
+    #[serde(default = "default_platform_turn_extrapolation")]
+    platform_turn_extrapolation_s: f64,
+}
+
+fn default_platform_turn_extrapolation() -> f64 {
+    PlatformVelocityConfig::default().max_turn_extrapolation_s
 }
 
 fn default_platform_velocity_max_std() -> f64 {
@@ -135,6 +144,7 @@ impl TrackerTask {
                 // Fixes come 2 s apart at the slowest detection rate (0.5 fps).
                 max_gap_s: 3.0,
                 max_velocity_std_m_s: params.platform_velocity_max_std_m_s,
+                max_turn_extrapolation_s: params.platform_turn_extrapolation_s,
                 ..PlatformVelocityConfig::default()
             })
             .map_err(|e| bad(&e))?,
@@ -190,7 +200,7 @@ impl Task for TrackerTask {
         });
         let now_s = ctx.now().as_secs_f64();
         let state_fresh = now_s - latest.stamp.as_secs_f64() <= MAX_STATE_AGE_S;
-        let platform_velocity = self.platform.velocity().map(|p| p.velocity_ned_m_s);
+        let platform_velocity = self.platform.velocity_at(now_s).map(|p| p.velocity_ned_m_s);
         if self.tracker.estimate().is_some() {
             let input = MotionInput {
                 uav_velocity_ned_m_s: state.velocity_ned_m_s,
@@ -301,7 +311,10 @@ impl Task for TrackerTask {
                 ctx.now(),
                 RelativeState {
                     estimate,
-                    platform_velocity_ned_m_s: self.platform.velocity().map(|p| p.velocity_ned_m_s),
+                    platform_velocity_ned_m_s: self
+                        .platform
+                        .velocity_at(now_s)
+                        .map(|p| p.velocity_ned_m_s),
                     last_fix_time_s: self.last_fix_time_s,
                 },
             );
@@ -363,6 +376,10 @@ mod tests {
                 "platform_velocity_max_std_m_s = inf",
                 "max_velocity_std_m_s",
             ),
+            (
+                "platform_turn_extrapolation_s = -0.5",
+                "max_turn_extrapolation_s",
+            ),
         ] {
             let Err(TaskError::Params(message)) = task(params) else {
                 panic!("{params} was accepted");
@@ -370,5 +387,6 @@ mod tests {
             assert!(message.contains(named), "{params}: {message}");
         }
         assert!(task("platform_velocity_max_std_m_s = 0.8").is_ok());
+        assert!(task("platform_turn_extrapolation_s = 0.0").is_ok());
     }
 }
