@@ -33,6 +33,37 @@ fn uav(t: f64) -> (Vector3<f64>, Vector3<f64>) {
     (p + offset, v + offset_rate)
 }
 
+/// A fix of the U-turning tractor from the wobbling UAV at `t`, its relative position and the
+/// UAV's velocity off by the given noise.
+fn u_turn_fix(
+    t: f64,
+    fix_std_m: f64,
+    relative_noise_m: Vector3<f64>,
+    velocity_noise_m_s: Vector3<f64>,
+    platform_yaw_rad: Option<f64>,
+) -> PlatformFix {
+    let (platform, _, _) = tractor(t);
+    let (uav_position, uav_velocity) = uav(t);
+    PlatformFix {
+        time_s: t,
+        uav_relative_ned_m: uav_position - platform + relative_noise_m,
+        horizontal_variance_m2: fix_std_m.powi(2),
+        uav_velocity_ned_m_s: uav_velocity + velocity_noise_m_s,
+        platform_yaw_rad,
+    }
+}
+
+/// A fix of a parked platform 7 m below a UAV holding still, off by `noise_m`.
+fn parked_fix(time_s: f64, fix_std_m: f64, noise_m: Vector3<f64>) -> PlatformFix {
+    PlatformFix {
+        time_s,
+        uav_relative_ned_m: Vector3::new(0.0, 0.0, -7.0) + noise_m,
+        horizontal_variance_m2: fix_std_m.powi(2),
+        uav_velocity_ned_m_s: Vector3::zeros(),
+        platform_yaw_rad: None,
+    }
+}
+
 struct Errors {
     max_in_turn_m_s: f64,
     max_after_turn_m_s: f64,
@@ -51,8 +82,7 @@ fn run(use_yaw: bool, seed: u64) -> Errors {
     };
     for k in 0..=(20.0 * 15.0) as usize {
         let t = k as f64 / 15.0; // 15 fps
-        let (platform, platform_velocity, yaw) = tractor(t);
-        let (uav_position, uav_velocity) = uav(t);
+        let (_, platform_velocity, yaw) = tractor(t);
         let noise = |rng: &mut SplitMix64, s: f64| {
             Vector3::new(
                 rng.next_gaussian(),
@@ -60,13 +90,15 @@ fn run(use_yaw: bool, seed: u64) -> Errors {
                 rng.next_gaussian(),
             ) * s
         };
-        let fix = PlatformFix {
-            time_s: t,
-            uav_relative_ned_m: uav_position - platform + noise(&mut rng, fix_std_m),
-            horizontal_variance_m2: fix_std_m.powi(2),
-            uav_velocity_ned_m_s: uav_velocity + noise(&mut rng, velocity_std_m_s),
-            platform_yaw_rad: use_yaw.then(|| yaw + 0.02 * rng.next_gaussian()),
-        };
+        let relative_noise_m = noise(&mut rng, fix_std_m);
+        let velocity_noise_m_s = noise(&mut rng, velocity_std_m_s);
+        let fix = u_turn_fix(
+            t,
+            fix_std_m,
+            relative_noise_m,
+            velocity_noise_m_s,
+            use_yaw.then(|| yaw + 0.02 * rng.next_gaussian()),
+        );
         let Some(est) = estimator.update(&fix).unwrap() else {
             continue;
         };
@@ -264,14 +296,10 @@ fn an_estimate_is_given_out_only_once_it_is_known() {
             for k in 0..30 {
                 let time_s = 0.1 * k as f64;
                 let noise = Vector3::new(rng.next_gaussian(), rng.next_gaussian(), 0.0) * fix_std_m;
-                let fix = PlatformFix {
-                    time_s,
-                    uav_relative_ned_m: Vector3::new(0.0, 0.0, -7.0) + noise,
-                    horizontal_variance_m2: fix_std_m.powi(2),
-                    uav_velocity_ned_m_s: Vector3::zeros(),
-                    platform_yaw_rad: None,
-                };
-                if let Some(v) = estimator.update(&fix).unwrap() {
+                if let Some(v) = estimator
+                    .update(&parked_fix(time_s, fix_std_m, noise))
+                    .unwrap()
+                {
                     worst_m_s = worst_m_s.max(v.velocity_ned_m_s.norm());
                     latest_s = latest_s.max(time_s);
                     break;
@@ -371,17 +399,9 @@ fn fed_until(until_s: f64, seed: u64) -> PlatformVelocityEstimator {
     let fix_std_m = 0.05;
     for k in 0..=(until_s * 15.0) as usize {
         let t = k as f64 / 15.0;
-        let (platform, _, _) = tractor(t);
-        let (uav_position, uav_velocity) = uav(t);
         let noise = Vector3::new(rng.next_gaussian(), rng.next_gaussian(), 0.0) * fix_std_m;
         estimator
-            .update(&PlatformFix {
-                time_s: t,
-                uav_relative_ned_m: uav_position - platform + noise,
-                horizontal_variance_m2: fix_std_m.powi(2),
-                uav_velocity_ned_m_s: uav_velocity,
-                platform_yaw_rad: None,
-            })
+            .update(&u_turn_fix(t, fix_std_m, noise, Vector3::zeros(), None))
             .unwrap();
     }
     estimator
@@ -434,8 +454,8 @@ fn the_velocity_is_carried_round_the_turn_after_the_last_fix() {
 
 /// Straight on, the rate of turn is the fixes' noise (5 cm fixes: the velocity's heading
 /// wanders by about 5°): a second and a half on, the velocity is turned by less than 10°, a
-/// quarter of what the U-turn's rate gives over that time; past `max_turn_extrapolation_s` it turns no further; parked, it is
-/// never turned at all.
+/// quarter of what the U-turn's rate gives over that time; past `max_turn_extrapolation_s` it
+/// turns no further; parked, it is never turned at all.
 #[test]
 fn a_straight_or_parked_platform_is_not_turned() {
     for seed in 1..=5 {
@@ -462,13 +482,7 @@ fn a_straight_or_parked_platform_is_not_turned() {
     for k in 0..30 {
         let noise = Vector3::new(rng.next_gaussian(), rng.next_gaussian(), 0.0) * 0.05;
         parked
-            .update(&PlatformFix {
-                time_s: 0.1 * k as f64,
-                uav_relative_ned_m: Vector3::new(0.0, 0.0, -7.0) + noise,
-                horizontal_variance_m2: 0.05f64.powi(2),
-                uav_velocity_ned_m_s: Vector3::zeros(),
-                platform_yaw_rad: None,
-            })
+            .update(&parked_fix(0.1 * k as f64, 0.05, noise))
             .unwrap();
     }
     assert_eq!(parked.velocity_at(3.9), parked.velocity());
