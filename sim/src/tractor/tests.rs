@@ -1,4 +1,5 @@
 use super::*;
+use std::f64::consts::FRAC_PI_2;
 
 const DT: f64 = 0.01;
 
