@@ -1,3 +1,4 @@
+use super::figures::ramp;
 use super::*;
 
 #[test]

@@ -1,3 +1,4 @@
+use super::motion::mask_out;
 use super::*;
 use crate::vision::features::{Descriptor, Keypoint};
 use nalgebra::Point3;
