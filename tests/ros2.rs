@@ -4,7 +4,7 @@
 //! run recorded for the same instant.
 
 mod common;
-use common::{cyclonedds_python, output_text, repo_root, short_mission, Px4};
+use common::{cyclone_client, cyclonedds_python, output_text, repo_root, short_mission, Px4};
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader};
@@ -35,8 +35,7 @@ fn an_independent_ros2_client_receives_what_the_mission_recorded() {
     let file = dir.path().join("m.mcap");
     // A vehicle name of this run's own: other runs on the machine share DDS domain 0.
     let vehicle = format!("test_{}", std::process::id());
-    let mut listener = Command::new(&python)
-        .arg(repo_root().join("tests/ros2/listen.py"))
+    let mut listener = cyclone_client(&python, "listen.py")
         .args([vehicle.as_str(), "60"])
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
@@ -371,9 +370,8 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
     };
     // The bad requests go out while the rest of the test runs.
     let bad_requests = cyclonedds_python().map(|python| {
-        Command::new(python)
-            .current_dir(repo_root().join("tests/ros2"))
-            .args(["bad_plan_requests.py", &names[1], "60"])
+        cyclone_client(&python, "bad_plan_requests.py")
+            .args([&names[1], "60"])
             .stdout(Stdio::piped())
             .spawn()
             .unwrap()
@@ -381,8 +379,8 @@ fn the_fleet_sees_every_vehicle_and_changes_their_plans_in_flight() {
     // One view for the whole test, as a ground station keeps it open: its snapshots in order.
     let view_started = std::time::Instant::now();
     let (mut view, mut snapshots) = fleet_view(180);
-    // Both flying, with the margin of the governor's first re-plan (RustDDS announces itself
-    // every 10 s; the first re-plan follows the governor's warm-up).
+    // Both flying, with the margin of the governor's first re-plan (which follows the
+    // governor's warm-up).
     let last = snapshots
         .find(|snapshot| {
             names
@@ -571,8 +569,7 @@ fn a_ros2_image_topic_is_a_camera() {
     };
     let topic = format!("/test_{}/image_raw", std::process::id());
     let mut camera = runtime::camera::open(&format!("ros2:{topic}"), Some((64, 48))).unwrap();
-    let mut publisher = Command::new(&python)
-        .arg(repo_root().join("tests/ros2/publish_frames.py"))
+    let mut publisher = cyclone_client(&python, "publish_frames.py")
         .args([topic.as_str(), "40"])
         .spawn()
         .unwrap();

@@ -150,6 +150,26 @@ pub fn record_short_mission(file: &std::path::Path, extra: &[&str]) -> std::proc
     sim
 }
 
+/// Cyclone DDS's discovery for the test clients: multicast as by default, and beside it unicast
+/// to the well-known ports of this host's participants (where RustDDS listens too), announced
+/// every second rather than every 30 s, so that one lost announcement does not leave a short
+/// mission unheard. A client once heard nothing of a 30 s mission in a CI run; its stderr now
+/// says how many writers each of its readers ever matched.
+const CYCLONE_DISCOVERY: &str = "<CycloneDDS><Domain Id=\"any\"><Discovery>\
+    <ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>\
+    <Peers><Peer Address=\"127.0.0.1\"/></Peers><SPDPInterval>1s</SPDPInterval>\
+    </Discovery></Domain></CycloneDDS>";
+
+/// A test's Cyclone DDS client: `script` under `tests/ros2/`, run by the binding's Python.
+pub fn cyclone_client(python: &std::path::Path, script: &str) -> Command {
+    let mut command = Command::new(python);
+    command
+        .current_dir(repo_root().join("tests/ros2"))
+        .arg(script)
+        .env("CYCLONEDDS_URI", CYCLONE_DISCOVERY);
+    command
+}
+
 /// A Python with Cyclone DDS's binding, installed once under `target/`; `None`, said, where it
 /// cannot be installed (no network to PyPI, no Python).
 pub fn cyclonedds_python() -> Option<PathBuf> {

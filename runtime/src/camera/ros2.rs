@@ -9,7 +9,7 @@ use super::{CameraSource, CameraSourceError, CameraStats, CapturedFrame};
 use crate::ros2::messages::{CompressedImage, Header, Image};
 use crate::ros2::{open_node, sensor_data_qos, subscription, Subscription};
 use algorithms::vision::image::GrayImage;
-use ros2_client::rustdds::GUID;
+use ros2_client::Gid;
 use ros2_client::MessageInfo;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -123,8 +123,8 @@ impl Ros2Camera {
                         let age = stamp_age(&header, SystemTime::now());
                         let captured_at = age.map_or(arrived_at, |age| arrived_at - age);
                         let mut queue = lock(&shared);
-                        let sequence = i64::from(info.sample_identity().sequence_number);
-                        queue.note_lost(gaps.lost_before(info.writer_guid(), sequence));
+                        let sequence = info.sequence_number();
+                        queue.note_lost(gaps.lost_before(info.publisher_gid(), sequence));
                         queue.push(image, captured_at, age.is_some(), age.is_none());
                     }
                 })
@@ -169,13 +169,13 @@ impl Reader {
 /// numbers (best effort: a frame that loses one of its fragments is lost whole).
 #[derive(Default)]
 struct SequenceGaps {
-    last: HashMap<GUID, i64>,
+    last: HashMap<Gid, i64>,
     warned: bool,
 }
 
 impl SequenceGaps {
     /// The frames lost before frame `sequence` of `writer`.
-    fn lost_before(&mut self, writer: GUID, sequence: i64) -> u64 {
+    fn lost_before(&mut self, writer: Gid, sequence: i64) -> u64 {
         let last = self.last.entry(writer).or_insert(sequence - 1);
         let lost = (sequence - *last - 1).max(0) as u64;
         *last = (*last).max(sequence);
@@ -302,7 +302,7 @@ mod tests {
 
     #[test]
     fn frames_missing_from_a_writers_sequence_are_counted_lost() {
-        let writer = |n: u8| GUID::from_bytes([n; 16]);
+        let writer = |n: u8| Gid::from([n; 16]);
         let mut gaps = SequenceGaps::default();
         let lost: Vec<u64> = [(1, 1), (1, 2), (2, 10), (1, 6), (2, 11), (1, 5), (1, 9)]
             .into_iter()

@@ -23,10 +23,10 @@ use crate::telemetry::BatteryTelemetry;
 use crate::topics::VehicleState;
 use crate::topics::{HazardReport, RelativeState, HAZARDS, RELATIVE_STATE};
 use nalgebra::Vector3;
-use ros2_client::rustdds::policy::{Durability, History, Reliability};
-use ros2_client::rustdds::{Duration as DdsDuration, QosPolicies, QosPolicyBuilder};
+use ros2_client::qos::{Durability, History};
 pub use ros2_client::{
-    Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, Subscription,
+    Context, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
+    Subscription,
 };
 use serde::Serialize;
 use std::sync::{mpsc, Arc, Mutex};
@@ -292,35 +292,24 @@ pub fn open_node(namespace: &str, name: &str) -> Result<(Context, Node), Ros2Err
 }
 
 /// `rclcpp::SensorDataQoS`: best effort, volatile, the last five.
-pub fn sensor_data_qos() -> QosPolicies {
-    QosPolicyBuilder::new()
-        .reliability(Reliability::BestEffort)
-        .durability(Durability::Volatile)
-        .history(History::KeepLast { depth: 5 })
-        .build()
+pub fn sensor_data_qos() -> QosProfile {
+    QosProfile::subscription_default().history(History::KeepLast { depth: 5 })
 }
 
-/// State: reliable, the last `depth` kept for subscribers that join later.
-pub fn state_qos(depth: i32) -> QosPolicies {
-    QosPolicyBuilder::new()
-        .reliability(Reliability::Reliable {
-            max_blocking_time: DdsDuration::from_millis(100),
-        })
+/// State: reliable (a full send window waits 100 ms), the last `depth` kept for subscribers
+/// that join later.
+pub fn state_qos(depth: usize) -> QosProfile {
+    QosProfile::publisher_default()
         .durability(Durability::TransientLocal)
         .history(History::KeepLast { depth })
-        .build()
 }
 
 /// A request and its answer: reliable, not kept for later subscribers (a late answer would
 /// answer nobody).
-pub fn request_qos() -> QosPolicies {
-    QosPolicyBuilder::new()
-        .reliability(Reliability::Reliable {
-            max_blocking_time: DdsDuration::from_millis(100),
-        })
+pub fn request_qos() -> QosProfile {
+    QosProfile::publisher_default()
         .durability(Durability::Volatile)
         .history(History::KeepLast { depth: 10 })
-        .build()
 }
 
 /// Where a topic is and what it carries: its namespace, name, and `package/type_name`.
@@ -334,12 +323,12 @@ pub struct TopicSpec<'a> {
 fn with_topic<T>(
     node: &mut Node,
     spec: &TopicSpec,
-    qos: QosPolicies,
+    qos: QosProfile,
     make: impl FnOnce(
         &mut Node,
-        &ros2_client::rustdds::Topic,
-        QosPolicies,
-    ) -> Result<T, ros2_client::rustdds::dds::CreateError>,
+        &ros2_client::dds::rustdds::Topic,
+        QosProfile,
+    ) -> Result<T, ros2_client::CreateError>,
 ) -> Result<T, Ros2Error> {
     let start =
         |e: String| Ros2Error::Start(format!("topic {}/{}: {e}", spec.namespace, spec.name));
@@ -357,7 +346,7 @@ pub fn subscription<M: serde::de::DeserializeOwned + 'static>(
     namespace: &str,
     topic: &str,
     type_name: (&str, &str),
-    qos: QosPolicies,
+    qos: QosProfile,
 ) -> Result<Subscription<M>, Ros2Error> {
     let spec = TopicSpec {
         namespace,
@@ -375,7 +364,7 @@ pub fn publisher<M: Serialize>(
     namespace: &str,
     topic: &str,
     type_name: (&str, &str),
-    qos: QosPolicies,
+    qos: QosProfile,
 ) -> Result<Publisher<M>, Ros2Error> {
     let spec = TopicSpec {
         namespace,
@@ -400,5 +389,28 @@ mod tests {
             );
         }
         assert!(valid_segment("drone_1") && valid_segment("Vehicle2"));
+    }
+
+    /// Nodes started at once, as a companion computer boots several, or a fleet's missions
+    /// start together: each comes up. RustDDS 0.11 held its discovery database's lock while
+    /// handing a new writer to its event loop, whose queue holds ten; an event loop busy with
+    /// the others' discovery then waited on the lock, and the node never finished starting
+    /// (one fleet test in three: "the DDS participant was not ready within 30 s").
+    #[test]
+    fn nodes_started_together_all_come_up() {
+        for round in 0..3 {
+            let starts: Vec<_> = (0..6)
+                .map(|i| {
+                    let vehicle = format!("together_{}_{round}_{i}", std::process::id());
+                    std::thread::spawn(move || Ros2Node::start(&vehicle, 5.0).map(drop))
+                })
+                .collect();
+            for start in starts {
+                start
+                    .join()
+                    .expect("the starting thread")
+                    .expect("the node starts");
+            }
+        }
     }
 }
