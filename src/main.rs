@@ -308,10 +308,14 @@ fn default_log_level(command: &Command) -> &'static str {
     // locator on an IPv4-only host) and, as errors, the events it gets after its entities are
     // gone at the end: noise to a user (RUST_LOG=rustdds=warn shows it). ros2-client's node
     // logs as an error every count of matched peers asked before the first has matched, which
-    // is how `qosrt fleet set` waits for a vehicle.
+    // is how `qosrt fleet set` waits for a vehicle. It warns at every start that ROS_DISTRO is
+    // unset, as it is where no ROS is installed (the node needs none); a ROS_DISTRO other than
+    // the one it was built for is an error, and shown.
     match command {
-        Command::Run { dry_run: false, .. } => "info,rustdds=off,ros2_client::node=off",
-        _ => "warn,rustdds=off,ros2_client::node=off",
+        Command::Run { dry_run: false, .. } => {
+            "info,rustdds=off,ros2_client::node=off,ros2_client::distributions=error"
+        }
+        _ => "warn,rustdds=off,ros2_client::node=off,ros2_client::distributions=error",
     }
 }
 
