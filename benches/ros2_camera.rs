@@ -20,7 +20,7 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
 
 const WIDTH: usize = 640;
@@ -36,9 +36,8 @@ fn percentile(sorted: &[f64], fraction: f64) -> f64 {
 
 /// The driver publishing on `topic` for `seconds`.
 fn publisher(python: &Path, topic: &str, seconds: f64) -> Child {
-    Command::new(python)
-        .current_dir(common::repo_root().join("tests/ros2"))
-        .args(["publish_camera.py", topic, &seconds.to_string()])
+    common::cyclone_script(python, "publish_camera.py")
+        .args([topic, &seconds.to_string()])
         .args([WIDTH.to_string(), HEIGHT.to_string(), FPS.to_string()])
         .spawn()
         .expect("the publisher starts")
@@ -85,9 +84,8 @@ fn qosrt_delays_ms(python: &Path) -> Vec<f64> {
 /// Cyclone DDS's reader (its own process) on the same driver, over as many frames.
 fn baseline_delays_ms(python: &Path, frames: usize) -> Vec<f64> {
     let topic = format!("/bench_{}/cyclone/image_raw", std::process::id());
-    let reader = Command::new(python)
-        .current_dir(common::repo_root().join("tests/ros2"))
-        .args(["receive_camera.py", &topic, &frames.to_string()])
+    let reader = common::cyclone_script(python, "receive_camera.py")
+        .args([&topic, &frames.to_string()])
         .arg((DISCOVERY_LIMIT_S + SECONDS).to_string())
         .stdout(Stdio::piped())
         .spawn()

@@ -303,7 +303,7 @@ fn join_optional_values(args: impl IntoIterator<Item = OsString>) -> Vec<OsStrin
 
 /// Flying logs what it does as it goes (mode changes, QoS changes, faults); the other commands
 /// print their results and log only warnings.
-fn default_log_level(command: &Command) -> &'static str {
+fn default_log_level(command: &Command) -> String {
     // RustDDS (the ROS 2 node) logs every datagram a network it cannot reach refuses (an IPv6
     // locator on an IPv4-only host) and, as errors, the events it gets after its entities are
     // gone at the end: noise to a user (RUST_LOG=rustdds=warn shows it). ros2-client's node
@@ -311,12 +311,11 @@ fn default_log_level(command: &Command) -> &'static str {
     // is how `qosrt fleet set` waits for a vehicle. It warns at every start that ROS_DISTRO is
     // unset, as it is where no ROS is installed (the node needs none); a ROS_DISTRO other than
     // the one it was built for is an error, and shown.
-    match command {
-        Command::Run { dry_run: false, .. } => {
-            "info,rustdds=off,ros2_client::node=off,ros2_client::distributions=error"
-        }
-        _ => "warn,rustdds=off,ros2_client::node=off,ros2_client::distributions=error",
-    }
+    let level = match command {
+        Command::Run { dry_run: false, .. } => "info",
+        _ => "warn",
+    };
+    format!("{level},rustdds=off,ros2_client::node=off,ros2_client::distributions=error")
 }
 
 #[cfg(test)]

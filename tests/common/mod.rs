@@ -160,13 +160,20 @@ const CYCLONE_DISCOVERY: &str = "<CycloneDDS><Domain Id=\"any\"><Discovery>\
     <Peers><Peer Address=\"127.0.0.1\"/></Peers><SPDPInterval>1s</SPDPInterval>\
     </Discovery></Domain></CycloneDDS>";
 
-/// A test's Cyclone DDS client: `script` under `tests/ros2/`, run by the binding's Python.
-pub fn cyclone_client(python: &std::path::Path, script: &str) -> Command {
+/// A Cyclone DDS client: `script` under `tests/ros2/`, run by the binding's Python with Cyclone
+/// DDS's own discovery (as the benchmark runs it).
+pub fn cyclone_script(python: &std::path::Path, script: &str) -> Command {
     let mut command = Command::new(python);
     command
         .current_dir(repo_root().join("tests/ros2"))
-        .arg(script)
-        .env("CYCLONEDDS_URI", CYCLONE_DISCOVERY);
+        .arg(script);
+    command
+}
+
+/// A test's Cyclone DDS client: [`cyclone_script`] with the tests' discovery.
+pub fn cyclone_client(python: &std::path::Path, script: &str) -> Command {
+    let mut command = cyclone_script(python, script);
+    command.env("CYCLONEDDS_URI", CYCLONE_DISCOVERY);
     command
 }
 
