@@ -116,6 +116,34 @@ impl<'a> ImageView<'a> {
         }
     }
 
+    /// The image at half the resolution: each pixel the rounded mean of a 2×2 block (an odd
+    /// last row or column is left out), so that pixel k covers pixels 2k and 2k + 1. `None`
+    /// for an image less than 2 pixels wide or high.
+    pub fn half_resolution(&self) -> Option<GrayImage> {
+        let (width, height) = (self.width / 2, self.height / 2);
+        if width == 0 || height == 0 {
+            return None;
+        }
+        let mut data = Vec::with_capacity(width * height);
+        for y in 0..height {
+            let (top, bottom) = (self.row(2 * y), self.row(2 * y + 1));
+            data.extend(
+                top.chunks_exact(2)
+                    .zip(bottom.chunks_exact(2))
+                    .map(|(t, b)| {
+                        let sum =
+                            u16::from(t[0]) + u16::from(t[1]) + u16::from(b[0]) + u16::from(b[1]);
+                        ((sum + 2) / 4) as u8
+                    }),
+            );
+        }
+        Some(GrayImage {
+            width,
+            height,
+            data,
+        })
+    }
+
     /// A tightly packed copy.
     pub fn to_owned(&self) -> GrayImage {
         let mut data = Vec::with_capacity(self.width * self.height);
@@ -322,6 +350,36 @@ mod tests {
         assert_eq!(view.row(1), &[4, 5, 6]);
         assert_eq!(view.get(2, 1), 6);
         assert_eq!(view.to_owned().data(), &[1, 2, 3, 4, 5, 6]);
+    }
+
+    #[test]
+    fn half_resolution_averages_blocks_and_drops_an_odd_edge() {
+        // 5×3 in rows of 6 bytes: the last column, the last row and the padding never count.
+        let data = [
+            0, 1, 10, 10, 7, 99, //
+            2, 2, 10, 11, 7, 99, //
+            9, 9, 9, 9, 9, 99,
+        ];
+        let half = ImageView::new(5, 3, 6, &data)
+            .unwrap()
+            .half_resolution()
+            .unwrap();
+        assert_eq!((half.width(), half.height()), (2, 1));
+        // (0 + 1 + 2 + 2) / 4 = 1.25 and (10 + 10 + 10 + 11) / 4 = 10.25, to the nearest.
+        assert_eq!(half.data(), &[1, 10]);
+        // 1.75 rounds to 2.
+        let rounds_up = [1, 2, 2, 2];
+        let half = ImageView::new(2, 2, 2, &rounds_up)
+            .unwrap()
+            .half_resolution();
+        assert_eq!(half.unwrap().data(), &[2]);
+        let white = [255; 4];
+        let half = ImageView::new(2, 2, 2, &white).unwrap().half_resolution();
+        assert_eq!(half.unwrap().data(), &[255]);
+        assert!(ImageView::new(1, 4, 1, &[0; 4])
+            .unwrap()
+            .half_resolution()
+            .is_none());
     }
 
     #[test]

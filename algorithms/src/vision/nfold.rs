@@ -18,6 +18,10 @@
 //!    phase, pick the missing leg for oriented markers, and score quality; the first candidate and
 //!    size whose quality passes the threshold is the detection (adaptive kernel size).
 //!
+//! A region's search (around a predicted centre) that finds nothing at full resolution tries
+//! again at half, quarter, eighth and sixteenth resolution: close to the camera the marker is
+//! tens of kernels wide, and an occluder on its tip fills every full-resolution kernel's disc.
+//!
 //! Quality, in [0, 1], is the product of three checks over the kernel's disc against the black and
 //! white sectors the phase predicts: the weighted correlation of image and pattern; the consistency
 //! of 3 × 2 cells per sector (each on its predicted side of the black–white midpoint: wedges, not
@@ -35,7 +39,7 @@ use std::f64::consts::{PI, TAU};
 
 use thiserror::Error;
 
-use super::image::{FrameError, ImageView};
+use super::image::{FrameError, GrayImage, ImageView};
 
 mod correlation;
 mod sectors;
@@ -57,6 +61,8 @@ pub enum NfoldConfigError {
     QualityThreshold(f64),
     #[error("the search pyramid level must be 0 to 3, got {0}")]
     SearchLevel(u32),
+    #[error("a region's search falls back to at most 4 coarser levels, got {0}")]
+    RoiFallbackLevels(u32),
     #[error("at least one candidate must be examined")]
     NoCandidates,
 }
@@ -98,6 +104,11 @@ pub struct NfoldConfig {
     pub candidates: usize,
     /// If set, frames of any other size are rejected with [`FrameError::WrongSize`].
     pub expected_frame_size_px: Option<(usize, usize)>,
+    /// Coarser pyramid levels (half, quarter, … resolution) a region's search falls back to
+    /// when it finds nothing at full resolution: close to the camera the marker is tens of
+    /// kernels wide, and an occluder on its tip (mud, straw, a shadow) fills every
+    /// full-resolution kernel, where a coarser level's kernels reach past it to the legs.
+    pub roi_fallback_levels: u32,
 }
 
 impl Default for NfoldConfig {
@@ -111,6 +122,7 @@ impl Default for NfoldConfig {
             quality_threshold: 0.5,
             candidates: 3,
             expected_frame_size_px: None,
+            roi_fallback_levels: 4,
         }
     }
 }
@@ -160,6 +172,8 @@ pub struct NfoldDetector {
     config: NfoldConfig,
     search: SeparableKernel,
     roi_search: SeparableKernel,
+    /// The largest kernel, for a region's search at a coarser level (the tip hidden).
+    roi_search_wide: SeparableKernel,
     refine: Vec<DirectKernel>,
 }
 
@@ -173,6 +187,11 @@ impl NfoldDetector {
         }
         if config.search_level > 3 {
             return Err(NfoldConfigError::SearchLevel(config.search_level));
+        }
+        if config.roi_fallback_levels > 4 {
+            return Err(NfoldConfigError::RoiFallbackLevels(
+                config.roi_fallback_levels,
+            ));
         }
         if config.candidates == 0 {
             return Err(NfoldConfigError::NoCandidates);
@@ -195,6 +214,7 @@ impl NfoldDetector {
         Ok(Self {
             search: SeparableKernel::new(n, config.search_kernel_px),
             roi_search: SeparableKernel::new(n, smallest),
+            roi_search_wide: SeparableKernel::new(n, *sizes.last().unwrap_or(&smallest)),
             refine: sizes.iter().map(|&s| DirectKernel::new(n, s)).collect(),
             config: NfoldConfig {
                 kernel_sizes_px: sizes,
@@ -235,15 +255,61 @@ impl NfoldDetector {
         Ok(self.refine_candidates(image, starts))
     }
 
-    /// Searches only where the centre may be, at full resolution, with the smallest kernel size.
-    /// A box wholly outside the frame (or too thin for the kernel) finds nothing: `Ok(None)`.
+    /// Searches only where the centre may be, at full resolution with the smallest kernel size,
+    /// then (finding nothing) at each of `roi_fallback_levels` coarser levels in turn, the box
+    /// and the detection in full-resolution pixels; a detection at level L reports its kernel's
+    /// reach at full resolution (its size × 2^L). A box wholly outside the frame (or too thin
+    /// for the kernel) finds nothing: `Ok(None)`.
     pub fn detect_in_roi(
         &self,
         image: &ImageView<'_>,
         roi: &Roi,
     ) -> Result<Option<NfoldDetection>, NfoldError> {
         self.check_frame(image)?;
-        let r = self.roi_search.radius as f64;
+        if let Some(found) = self.search_roi(image, roi, &self.roi_search) {
+            return Ok(Some(found));
+        }
+        let mut coarse = None::<GrayImage>;
+        for level in 1..=self.config.roi_fallback_levels {
+            let finer = coarse.as_ref().map_or(*image, GrayImage::view);
+            let Some(half) = finer.half_resolution() else {
+                break;
+            };
+            let view = half.view();
+            if view.width() < self.min_frame_px() || view.height() < self.min_frame_px() {
+                break;
+            }
+            // Pixel k of level L covers full-resolution pixels k·2^L … (k + 1)·2^L − 1.
+            let scale = f64::from(1u32 << level);
+            let offset = (scale - 1.0) / 2.0;
+            let to_level = |px: f64| (px - offset) / scale;
+            let level_roi = Roi {
+                min_u_px: to_level(roi.min_u_px),
+                min_v_px: to_level(roi.min_v_px),
+                max_u_px: to_level(roi.max_u_px),
+                max_v_px: to_level(roi.max_v_px),
+            };
+            if let Some(found) = self.search_roi(&view, &level_roi, &self.roi_search_wide) {
+                return Ok(Some(NfoldDetection {
+                    u_px: found.u_px * scale + offset,
+                    v_px: found.v_px * scale + offset,
+                    kernel_size_px: found.kernel_size_px << level,
+                    ..found
+                }));
+            }
+            coarse = Some(half);
+        }
+        Ok(None)
+    }
+
+    /// [`Self::detect_in_roi`] at the image's own resolution.
+    fn search_roi(
+        &self,
+        image: &ImageView<'_>,
+        roi: &Roi,
+        search: &SeparableKernel,
+    ) -> Option<NfoldDetection> {
+        let r = search.radius as f64;
         let (w, h) = (image.width() as f64, image.height() as f64);
         // Centres must keep the whole kernel inside the frame.
         let min_u = roi.min_u_px.ceil().max(r);
@@ -251,17 +317,17 @@ impl NfoldDetector {
         let max_u = roi.max_u_px.floor().min(w - 1.0 - r);
         let max_v = roi.max_v_px.floor().min(h - 1.0 - r);
         if !(min_u <= max_u && min_v <= max_v) {
-            return Ok(None);
+            return None;
         }
         let (x0, y0) = ((min_u - r) as usize, (min_v - r) as usize);
         let (x1, y1) = ((max_u + r) as usize + 1, (max_v + r) as usize + 1);
         let plane = Plane::from_view(image, x0, y0, x1 - x0, y1 - y0, 0);
-        let response = self.roi_search.magnitude_squared(&plane);
-        let peaks = strongest_peaks(response, self.config.candidates, self.roi_search.radius);
+        let response = search.magnitude_squared(&plane);
+        let peaks = strongest_peaks(response, self.config.candidates, search.radius);
         let starts = peaks
             .into_iter()
             .map(|(x, y)| ((x0 + x) as f64 + r, (y0 + y) as f64 + r));
-        Ok(self.refine_candidates(image, starts))
+        self.refine_candidates(image, starts)
     }
 
     fn check_frame(&self, image: &ImageView<'_>) -> Result<(), NfoldError> {

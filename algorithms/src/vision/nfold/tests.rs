@@ -342,6 +342,62 @@ fn an_occluded_tip_is_still_detected() {
     assert!(percentile(&errors.centre_px, 1.0) < 1.5);
 }
 
+/// A grey square over the tip the size of the simulated world's occluders on its pad (0.12 m
+/// on a 0.44 m marker): 14 cm here, 28 % of the marker's diameter.
+fn large_tip_occluder(rng: &mut StdRng) -> Option<Patch> {
+    let level = rng.random_range(0.2..0.9);
+    let yaw = rng.random_range(0.0..PI);
+    Some(Patch::square(0.0, 0.0, yaw, 0.14, Texture::uniform(level)))
+}
+
+#[test]
+fn a_close_marker_with_its_tip_occluded_is_found_at_a_coarser_level() {
+    // 0.6–1.6 m: the occluder is 50–130 px wide, past every full-resolution kernel (≤ 25 px).
+    let close = (0.6, 1.6);
+    let full_resolution_only = NfoldConfig {
+        roi_fallback_levels: 0,
+        ..NfoldConfig::default()
+    };
+    let before = run(
+        17,
+        20,
+        full_resolution_only,
+        Mode::Roi(40.0),
+        large_tip_occluder,
+        close,
+    );
+    before.report("n-fold, ROI ±40 px, large tip occluder, full resolution only");
+    let errors = run(
+        17,
+        20,
+        NfoldConfig::default(),
+        Mode::Roi(40.0),
+        large_tip_occluder,
+        close,
+    );
+    errors.report("n-fold, ROI ±40 px, large tip occluder, with the coarser levels");
+    assert_eq!(errors.counted, 20);
+    assert!(before.detected <= 2, "{} of 20", before.detected);
+    // A few, most of them the closest (the occluder 90–135 px), still hide the tip at every
+    // level whose kernels fit the frame.
+    assert!(errors.detected >= 15, "{} of 20", errors.detected);
+    // A pixel at 1 m is 1.6 mm on the pad.
+    assert!(percentile(&errors.centre_px, 0.5) < 0.5);
+    assert!(percentile(&errors.centre_px, 1.0) < 1.5);
+    // Without an occluder the full resolution still finds a close marker first.
+    let clear = run(
+        18,
+        10,
+        NfoldConfig::default(),
+        Mode::Roi(40.0),
+        no_occluder,
+        close,
+    );
+    clear.report("n-fold, ROI ±40 px, close, no occluder");
+    assert_eq!(clear.detected, clear.counted);
+    assert!(percentile(&clear.centre_px, 1.0) < 1.5);
+}
+
 #[test]
 fn an_occluded_sector_is_still_detected() {
     let errors = run(
@@ -425,15 +481,23 @@ fn false_positives(seed: u64, frames: usize, oriented: bool) -> usize {
         .filter(|_| {
             // Without anti-aliasing: it is texture, and this keeps the test quick.
             let image = random_markerless(&mut rng, 1);
+            // A region's search falls back to coarser levels: anywhere it looks counts too.
+            let (u, v) = (rng.random_range(0.0..640.0), rng.random_range(0.0..480.0));
+            let roi = Roi::around(u, v, 60.0);
             detector.detect(&image.view()).unwrap().is_some()
+                || detector
+                    .detect_in_roi(&image.view(), &roi)
+                    .unwrap()
+                    .is_some()
         })
         .count()
 }
 
 #[test]
 fn markerless_frames_give_no_detection() {
-    // 200 frames (100 for the oriented variant) in the default suite; the 1,000-frame version
-    // is ignored (run it with --ignored). Fewer than 1 % may be false positives.
+    // 200 frames (100 for the oriented variant) in the default suite, each searched whole and
+    // in a random region; the 1,000-frame version is ignored (run it with --ignored). Fewer
+    // than 1 % may be false positives.
     for (oriented, frames) in [(false, 200), (true, 100)] {
         let fp = false_positives(17, frames, oriented);
         println!("markerless frames (oriented: {oriented}): {fp} false positives in {frames}");
