@@ -44,6 +44,10 @@ pub struct SimOutcome {
     pub touchdown_vertical_speed_m_s: Option<f64>,
     /// From the start of the landing phase to touchdown.
     pub time_to_land_s: Option<f64>,
+    /// How long the tracker had gone without a vision fix when the vehicle touched down (the
+    /// fix's age at the runtime's last step before contact): the blind end of the descent,
+    /// flown on the tracker's prediction. `None` without a touchdown or a fix.
+    pub blind_before_contact_s: Option<f64>,
     /// From arming to the end of the simulation.
     pub mission_time_s: f64,
     pub flight_energy_wh: f64,
@@ -118,6 +122,7 @@ pub struct SimSummary {
     /// Over every run that touched down (pad or not): how hard and how leaning.
     pub touchdown_vertical_speed_p95_m_s: Option<f64>,
     pub touchdown_tilt_p95_deg: Option<f64>,
+    pub blind_before_contact_p95_s: Option<f64>,
     pub energy_mean_wh: f64,
     pub companion_energy_mean_wh: f64,
 }
@@ -170,6 +175,7 @@ impl SimSummary {
             time_to_land_p50_s: quantile(&times, 0.5),
             touchdown_vertical_speed_p95_m_s: of_touchdowns(&|o| o.touchdown_vertical_speed_m_s),
             touchdown_tilt_p95_deg: of_touchdowns(&|o| o.touchdown_tilt_deg),
+            blind_before_contact_p95_s: of_touchdowns(&|o| o.blind_before_contact_s),
             energy_mean_wh: mean(&|o| o.flight_energy_wh + o.companion_energy_wh),
             companion_energy_mean_wh: mean(&|o| o.companion_energy_wh),
         }
@@ -220,5 +226,22 @@ mod tests {
         assert!((summary.touchdown_error_p95_m.unwrap() - 0.29).abs() < 1e-12);
         assert_eq!(summary.energy_mean_wh, 14.0);
         assert_eq!(summary.companion_energy_mean_wh, 1.0);
+    }
+
+    #[test]
+    fn the_blind_time_before_contact_counts_every_touchdown_that_had_a_fix() {
+        let blind = |on_pad, blind_s| SimOutcome {
+            blind_before_contact_s: blind_s,
+            ..outcome(on_pad, 0.1, 10.0)
+        };
+        // The miss off the pad counts (it is how it missed); a run without a fix does not.
+        let outcomes = [
+            blind(true, Some(0.1)),
+            blind(false, Some(0.9)),
+            blind(true, None),
+        ];
+        let summary = SimSummary::of(&outcomes);
+        assert!((summary.blind_before_contact_p95_s.unwrap() - 0.86).abs() < 1e-12);
+        assert_eq!(SimSummary::of(&[]).blind_before_contact_p95_s, None);
     }
 }

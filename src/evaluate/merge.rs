@@ -15,6 +15,10 @@ pub struct RunRecord {
     /// Down-positive speed at touchdown (absent from shards written before it was recorded).
     #[serde(default)]
     pub touchdown_vertical_speed_m_s: Option<f64>,
+    /// How long the tracker had been without a vision fix at contact (absent from shards
+    /// written before it was recorded).
+    #[serde(default)]
+    pub blind_before_contact_s: Option<f64>,
     pub time_to_land_s: Option<f64>,
     pub mission_time_s: f64,
     pub flight_energy_wh: f64,
@@ -31,6 +35,7 @@ impl From<&SimOutcome> for RunRecord {
             touchdown_error_m: o.touchdown_error_m,
             touchdown_tilt_deg: o.touchdown_tilt_deg,
             touchdown_vertical_speed_m_s: o.touchdown_vertical_speed_m_s,
+            blind_before_contact_s: o.blind_before_contact_s,
             time_to_land_s: o.time_to_land_s,
             mission_time_s: o.mission_time_s,
             flight_energy_wh: o.flight_energy_wh,
@@ -50,6 +55,7 @@ impl RunRecord {
             touchdown_error_m: self.touchdown_error_m,
             touchdown_tilt_deg: self.touchdown_tilt_deg,
             touchdown_vertical_speed_m_s: self.touchdown_vertical_speed_m_s,
+            blind_before_contact_s: self.blind_before_contact_s,
             time_to_land_s: self.time_to_land_s,
             mission_time_s: self.mission_time_s,
             flight_energy_wh: self.flight_energy_wh,

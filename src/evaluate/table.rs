@@ -18,6 +18,7 @@ pub struct Row {
     pub time_to_land_p50_s: Option<f64>,
     pub touchdown_vertical_speed_p95_m_s: Option<f64>,
     pub touchdown_tilt_p95_deg: Option<f64>,
+    pub blind_before_contact_p95_s: Option<f64>,
     pub energy_mean_wh: f64,
     pub companion_energy_mean_wh: f64,
     pub landing_aborts_mean: f64,
@@ -42,6 +43,7 @@ impl Row {
             time_to_land_p50_s: summary.time_to_land_p50_s,
             touchdown_vertical_speed_p95_m_s: summary.touchdown_vertical_speed_p95_m_s,
             touchdown_tilt_p95_deg: summary.touchdown_tilt_p95_deg,
+            blind_before_contact_p95_s: summary.blind_before_contact_p95_s,
             energy_mean_wh: summary.energy_mean_wh,
             companion_energy_mean_wh: summary.companion_energy_mean_wh,
             landing_aborts_mean: if runs.is_empty() {
@@ -79,14 +81,14 @@ pub fn table(evaluation: &Evaluation, rows: &[Row]) -> String {
         evaluation.config_path,
         evaluation.autopilot
     );
-    out += "| autopilot | world | marker rate (fps) | wind (m/s) | wind kind | path | tractor (m/s) | success | touchdown error p50 / p95 (m) | vertical speed p95 (m/s) | tilt p95 (°) | time to land p50 (s) | energy (Wh) | of which companion (Wh) | landing aborts (mean) |\n";
-    out += "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
+    out += "| autopilot | world | marker rate (fps) | wind (m/s) | wind kind | path | tractor (m/s) | success | touchdown error p50 / p95 (m) | vertical speed p95 (m/s) | tilt p95 (°) | blind before contact p95 (s) | time to land p50 (s) | energy (Wh) | of which companion (Wh) | landing aborts (mean) |\n";
+    out += "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n";
     let metres = |v: Option<f64>| v.map_or_else(|| "—".into(), |v| format!("{v:.3}"));
     let hundredths = |v: Option<f64>| v.map_or_else(|| "—".into(), |v| format!("{v:.2}"));
     let tenths = |v: Option<f64>| v.map_or_else(|| "—".into(), |v| format!("{v:.1}"));
     for r in rows {
         out += &format!(
-            "| {} | {} | {} | {} | {} | {} | {} | {:.0} %{} | {} / {} | {} | {} | {} | {:.2} | {:.3} | {:.2} |\n",
+            "| {} | {} | {} | {} | {} | {} | {} | {:.0} %{} | {} / {} | {} | {} | {} | {} | {:.2} | {:.3} | {:.2} |\n",
             evaluation.autopilot,
             r.world,
             r.rate_fps,
@@ -105,6 +107,7 @@ pub fn table(evaluation: &Evaluation, rows: &[Row]) -> String {
             metres(r.touchdown_error_p95_m),
             hundredths(r.touchdown_vertical_speed_p95_m_s),
             tenths(r.touchdown_tilt_p95_deg),
+            hundredths(r.blind_before_contact_p95_s),
             tenths(r.time_to_land_p50_s),
             r.energy_mean_wh,
             r.companion_energy_mean_wh,
@@ -115,7 +118,7 @@ pub fn table(evaluation: &Evaluation, rows: &[Row]) -> String {
 }
 
 /// The CSV columns, one row per cell.
-pub const CSV_HEADER: &str = "autopilot,world,rate_fps,wind_m_s,wind_kind,path,tractor_speed_m_s,runs,success_rate,touchdown_error_p50_m,touchdown_error_p95_m,touchdown_vertical_speed_p95_m_s,touchdown_tilt_p95_deg,time_to_land_p50_s,energy_mean_wh,companion_energy_mean_wh,landing_aborts_mean";
+pub const CSV_HEADER: &str = "autopilot,world,rate_fps,wind_m_s,wind_kind,path,tractor_speed_m_s,runs,success_rate,touchdown_error_p50_m,touchdown_error_p95_m,touchdown_vertical_speed_p95_m_s,touchdown_tilt_p95_deg,blind_before_contact_p95_s,time_to_land_p50_s,energy_mean_wh,companion_energy_mean_wh,landing_aborts_mean";
 
 /// The table as CSV (RFC 4180): a header line, then one row per cell; numbers in full
 /// precision, a statistic with no runs to it empty.
@@ -138,6 +141,7 @@ pub fn csv(autopilot: &str, rows: &[Row]) -> String {
             optional(r.touchdown_error_p95_m),
             optional(r.touchdown_vertical_speed_p95_m_s),
             optional(r.touchdown_tilt_p95_deg),
+            optional(r.blind_before_contact_p95_s),
             optional(r.time_to_land_p50_s),
             number(r.energy_mean_wh),
             number(r.companion_energy_mean_wh),

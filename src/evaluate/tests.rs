@@ -581,6 +581,7 @@ fn csv_has_the_columns_and_quotes_what_needs_it() {
             touchdown_error_m: None,
             touchdown_tilt_deg: None,
             touchdown_vertical_speed_m_s: None,
+            blind_before_contact_s: None,
             time_to_land_s: None,
             mission_time_s: 300.0,
             flight_energy_wh: 9.0,
@@ -594,6 +595,7 @@ fn csv_has_the_columns_and_quotes_what_needs_it() {
             touchdown_error_m: Some(1.5),
             touchdown_tilt_deg: Some(12.0),
             touchdown_vertical_speed_m_s: Some(0.8),
+            blind_before_contact_s: Some(0.25),
             time_to_land_s: Some(20.0),
             mission_time_s: 90.0,
             flight_energy_wh: 2.0,
@@ -605,12 +607,12 @@ fn csv_has_the_columns_and_quotes_what_needs_it() {
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(lines.len(), 2);
     assert_eq!(lines[0], CSV_HEADER);
-    assert_eq!(lines[0].split(',').count(), 17);
+    assert_eq!(lines[0].split(',').count(), 18);
     // No landing on the pad: no touchdown error or time, empty fields; the one run that
     // touched down (off the pad) gives how hard and how leaning.
     assert_eq!(
         lines[1],
-        "builtin,realistic,2,8,gusts,straight,1.5,2,0,,,0.8,12,,5.6875,0.1875,1.5"
+        "builtin,realistic,2,8,gusts,straight,1.5,2,0,,,0.8,12,0.25,,5.6875,0.1875,1.5"
     );
 }
 
@@ -623,6 +625,7 @@ fn a_run_record_without_the_touchdown_tilt_reads_as_none() {
     let record: RunRecord = serde_json::from_str(text).unwrap();
     assert_eq!(record.touchdown_vertical_speed_m_s, None);
     assert_eq!(record.touchdown_tilt_deg, None);
+    assert_eq!(record.blind_before_contact_s, None);
     assert_eq!(record.touchdown_error_m, Some(0.05));
 }
 

@@ -214,7 +214,11 @@ pub fn report(outcome: &SimOutcome) -> String {
         outcome.touchdown_vertical_speed_m_s,
         outcome.touchdown_tilt_deg,
     ) {
-        out += &format!("  at contact           {speed:.2} m/s down, {tilt:.1}° of lean\n");
+        out += &format!("  at contact           {speed:.2} m/s down, {tilt:.1}° of lean");
+        if let Some(blind_s) = outcome.blind_before_contact_s {
+            out += &format!(", the last vision fix {blind_s:.2} s before");
+        }
+        out += "\n";
     }
     out += &format!(
         "  time to land         {} (from the start of the landing phase)\n",

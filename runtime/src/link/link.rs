@@ -31,6 +31,7 @@ use super::mapping::{
     command_message, companion_heartbeat, AutopilotKind, AutopilotStatus, CommandAck,
     CommandTarget, TelemetryState, VehicleCommand,
 };
+use super::redial::{connection_gone, Redial};
 use super::timesync::{ClockSync, ClockSyncStats};
 use super::LinkError;
 use crate::telemetry::BatteryTelemetry;
@@ -133,6 +134,8 @@ pub struct LinkStats {
     /// Sends and receives the transport refused (a closed TCP link refuses every one).
     pub send_failures: u64,
     pub receive_failures: u64,
+    /// `tcpout` connections dialled again after the autopilot reset or closed one.
+    pub redials: u64,
 }
 
 /// A send or receive path that may fail for a while (the autopilot gone, its TCP link closed):
@@ -187,6 +190,8 @@ pub enum Sent {
 /// The runtime's MAVLink connection to the autopilot.
 pub struct MavlinkLink {
     transport: Transport,
+    /// Dials a `tcpout` connection again when it goes.
+    redial: Option<Redial>,
     config: LinkConfig,
     telemetry: TelemetryState,
     now_s: f64,
@@ -226,7 +231,9 @@ impl MavlinkLink {
     }
 
     pub fn open(spec: &ConnectionSpec, config: LinkConfig) -> Result<Self, LinkError> {
-        Ok(Self::with_transport(spec.open(config.signing_key)?, config))
+        let mut link = Self::with_transport(spec.open(config.signing_key)?, config);
+        link.redial = Redial::of(spec, config.signing_key);
+        Ok(link)
     }
 
     /// A link over a recording's MAVLink (`qosrt replay`): it receives what `feed` is given.
@@ -267,6 +274,7 @@ impl MavlinkLink {
     fn with_transport(transport: Transport, config: LinkConfig) -> Self {
         Self {
             transport,
+            redial: None,
             config,
             telemetry: TelemetryState::new(),
             now_s: 0.0,
@@ -325,6 +333,10 @@ impl MavlinkLink {
     pub fn poll(&mut self, now_s: f64) -> LinkUpdate {
         self.now_s = now_s;
         self.poll_started = Instant::now();
+        if let Some(transport) = self.redial.as_mut().and_then(Redial::poll) {
+            self.transport = transport;
+            self.stats.redials += 1;
+        }
         let asked = self.request_autopilot_time(now_s);
         let mut update = self.empty_update();
         for _ in 0..MAX_DATAGRAMS_PER_POLL {
@@ -667,8 +679,16 @@ impl MavlinkLink {
             Err(error) => {
                 self.stats.receive_failures += 1;
                 self.receive_outage.failed("receive", &error);
+                self.connection_failed(&error);
                 Err(())
             }
+        }
+    }
+
+    /// A send or receive failed: where its connection is gone, dial again.
+    fn connection_failed(&mut self, error: &std::io::Error) {
+        if let Some(redial) = self.redial.as_mut().filter(|_| connection_gone(error)) {
+            redial.connection_lost();
         }
     }
 
@@ -690,6 +710,7 @@ impl MavlinkLink {
             Err(error) => {
                 self.stats.send_failures += 1;
                 self.send_outage.failed("send", &error);
+                self.connection_failed(&error);
                 return Err(error.into());
             }
         };

@@ -1,12 +1,14 @@
 //! The MAVLink link to the autopilot: connection strings ([`connection`]), the pure mapping
 //! between MAVLink messages and runtime types ([`mapping`]), and the link itself ([`link`]):
 //! telemetry in, commands out, link-loss detection and failsafe, and the lockstep handshake the
-//! simulator uses to stay deterministic.
+//! simulator uses to stay deterministic; a `tcpout` connection that goes is dialled again
+//! ([`redial`]).
 
 pub mod connection;
 #[allow(clippy::module_inception)]
 pub mod link;
 pub mod mapping;
+pub mod redial;
 pub mod timesync;
 
 pub use connection::{ConnectionSpec, Incoming, ReplayFeed};

@@ -365,6 +365,7 @@ impl<'a> Harness<'a> {
             touchdown_error_m: touchdown.map(|t| t.horizontal_error_m),
             touchdown_tilt_deg: first_touchdown.map(|t| t.tilt_deg),
             touchdown_vertical_speed_m_s: first_touchdown.map(|t| t.vertical_speed_m_s),
+            blind_before_contact_s: first_touchdown.and(score.fix_age_s),
             time_to_land_s: match (touchdown, self.phases.landing_started_s) {
                 (Some(t), Some(start)) => Some(t.time_s - start),
                 _ => None,

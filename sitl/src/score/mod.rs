@@ -32,6 +32,9 @@ pub struct FlightScore {
     pub hazard_backend: Option<&'static str>,
     /// The landing went back to searching this many times.
     pub landing_aborts: u32,
+    /// How old the tracker's latest vision fix was at the last step scored (the runtime's
+    /// clock); `None` before its first fix.
+    pub fix_age_s: Option<f64>,
     last_landing_mode: Option<LandingMode>,
     /// Keep the 1 Hz track and the levels' changes.
     record_track: bool,
@@ -54,6 +57,7 @@ impl FlightScore {
             relative_states: bus.subscriber::<RelativeState>(RELATIVE_STATE)?,
             hazard_reports: bus.subscriber::<HazardReport>(HAZARDS)?,
             localisation: LocalisationAccumulator::default(),
+            fix_age_s: None,
             hazards: HazardScore::default(),
             hazard_backend: None,
             landing_aborts: 0,
@@ -72,6 +76,7 @@ impl FlightScore {
             return;
         };
         let relative = &message.value;
+        self.fix_age_s = relative.last_fix_time_s.map(|fix_s| runtime_now_s - fix_s);
         let fresh = runtime_now_s - relative.estimate.time_s <= LOCALISATION_MAX_AGE_S;
         let seen = relative
             .last_fix_time_s

@@ -372,3 +372,46 @@ fn a_closed_tcp_link_is_counted_and_retried_at_the_heartbeat_period() {
         stats.send_failures
     );
 }
+
+/// An autopilot's TCP server that closes the runtime's connection and takes a new one (a SITL
+/// restarted on its port) is dialled again: a heartbeat on the new connection reaches the link,
+/// and no poll waits for the dial.
+#[test]
+fn a_tcp_link_whose_connection_closes_dials_again() {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let mut link =
+        MavlinkLink::connect(&format!("tcpout:127.0.0.1:{port}"), LinkConfig::default()).unwrap();
+    let (first, _) = listener.accept().unwrap();
+    drop(first);
+    listener.set_nonblocking(true).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let mut step = 0;
+    let mut second = loop {
+        assert!(Instant::now() < deadline, "not dialled again: {link:?}");
+        link.poll(f64::from(step) * 1e-3);
+        step += 1;
+        if let Ok((stream, _)) = listener.accept() {
+            break stream;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    // Once the dial's thread is done the new connection is the link's.
+    let header = MavHeader {
+        system_id: 1,
+        component_id: 1,
+        sequence: 0,
+    };
+    let mut bytes = Vec::new();
+    mavlink::write_versioned_msg(&mut bytes, MavlinkVersion::V2, header, &px4_heartbeat()).unwrap();
+    std::io::Write::write_all(&mut second, &bytes).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while link.telemetry().autopilot().is_none() {
+        assert!(Instant::now() < deadline, "no heartbeat: {link:?}");
+        link.poll(f64::from(step) * 1e-3);
+        step += 1;
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(link.stats().redials, 1);
+    assert!(link.stats().receive_failures > 0);
+}
