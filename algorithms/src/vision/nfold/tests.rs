@@ -606,6 +606,10 @@ fn bad_configs_are_named_errors() {
         with(|c| c.search_level = 4),
         NfoldConfigError::SearchLevel(4)
     );
+    assert_eq!(
+        with(|c| c.roi_fallback_levels = 5),
+        NfoldConfigError::RoiFallbackLevels(5)
+    );
     assert_eq!(with(|c| c.candidates = 0), NfoldConfigError::NoCandidates);
 }
 

@@ -346,17 +346,24 @@ fn with_a_signing_key_unsigned_messages_are_refused_and_what_is_sent_is_signed()
     assert_eq!(verify([9u8; 32]), 0);
 }
 
+/// A `tcpout` link to a local TCP server that accepted its connection and closed it at once
+/// (an autopilot that stopped or restarted); the server stays, to take a new connection.
+fn tcp_link_closed_by_its_peer() -> (std::net::TcpListener, MavlinkLink) {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let link =
+        MavlinkLink::connect(&format!("tcpout:127.0.0.1:{port}"), LinkConfig::default()).unwrap();
+    let (peer, _) = listener.accept().unwrap();
+    drop(peer);
+    (listener, link)
+}
+
 /// An autopilot whose TCP link closes (a SITL that stopped) refuses every send and receive:
 /// the link counts them, tries its heartbeat (and TIMESYNC) once a period rather than on
 /// every poll, and goes on polling.
 #[test]
 fn a_closed_tcp_link_is_counted_and_retried_at_the_heartbeat_period() {
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    let port = listener.local_addr().unwrap().port();
-    let mut link =
-        MavlinkLink::connect(&format!("tcpout:127.0.0.1:{port}"), LinkConfig::default()).unwrap();
-    let (peer, _) = listener.accept().unwrap();
-    drop(peer);
+    let (listener, mut link) = tcp_link_closed_by_its_peer();
     drop(listener);
     // Two seconds of the runner's 1 kHz polls.
     for step in 0..2000 {
@@ -378,12 +385,7 @@ fn a_closed_tcp_link_is_counted_and_retried_at_the_heartbeat_period() {
 /// and no poll waits for the dial.
 #[test]
 fn a_tcp_link_whose_connection_closes_dials_again() {
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    let port = listener.local_addr().unwrap().port();
-    let mut link =
-        MavlinkLink::connect(&format!("tcpout:127.0.0.1:{port}"), LinkConfig::default()).unwrap();
-    let (first, _) = listener.accept().unwrap();
-    drop(first);
+    let (listener, mut link) = tcp_link_closed_by_its_peer();
     listener.set_nonblocking(true).unwrap();
     let deadline = Instant::now() + Duration::from_secs(5);
     let mut step = 0;
