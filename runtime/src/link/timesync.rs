@@ -69,6 +69,9 @@ pub struct ClockSyncStats {
     pub offset_ns: Option<i64>,
     /// The round trip of the sample the estimate rests on.
     pub round_trip_ns: Option<i64>,
+    /// That sample's round-trip midpoint on the companion's clock (offset plus midpoint is
+    /// the autopilot's clock there).
+    pub midpoint_ns: Option<i64>,
     /// Autopilot seconds per companion second (1 but for a simulator off the wall clock).
     pub rate: Option<f64>,
 }
@@ -210,6 +213,7 @@ impl ClockSync {
         ClockSyncStats {
             offset_ns: trusted.map(|s| s.offset_ns),
             round_trip_ns: trusted.map(|s| s.round_trip_ns),
+            midpoint_ns: trusted.map(|s| s.midpoint_ns),
             rate: trusted.map(|_| self.rate()),
             ..self.stats
         }
