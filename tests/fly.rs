@@ -274,8 +274,9 @@ struct ArduPilot {
 }
 
 impl ArduPilot {
-    /// Starts instance `instance` at `speedup`× real time, or `None` when the SITL is absent.
-    fn start(instance: u8, speedup: u32) -> Option<Self> {
+    /// Starts instance `instance` at `speedup`× real time with `params` (`NAME=VALUE`) set at
+    /// boot, or `None` when the SITL is absent.
+    fn start(instance: u8, speedup: u32, params: &[&str]) -> Option<Self> {
         let start = repo_root().join("../shared/ardupilot-sitl/start");
         if !start.exists() {
             eprintln!("skipped: {} is absent", start.display());
@@ -283,6 +284,7 @@ impl ArduPilot {
         }
         let output = Command::new(&start)
             .args(["-I", &instance.to_string(), "-s", &speedup.to_string()])
+            .args(params.iter().flat_map(|param| ["-P", param]))
             .stdin(Stdio::null())
             .output()
             .expect("the ArduPilot start script runs");
@@ -313,7 +315,7 @@ impl Drop for ArduPilot {
 #[test]
 fn flies_ardupilot_through_guided_and_lands_it_with_land() {
     // 5× real time: its EKF's wait for GPS (about 41 s) takes about 8 s here.
-    let Some(copter) = ArduPilot::start(1, 5) else {
+    let Some(copter) = ArduPilot::start(1, 5, &[]) else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -364,6 +366,39 @@ fn flies_ardupilot_through_guided_and_lands_it_with_land() {
             report["messages_received"]
         );
     }
+}
+
+#[test]
+fn an_ardupilot_without_a_battery_monitor_gives_no_battery_telemetry_and_no_refusals() {
+    // BATT_MONITOR = 0: SYS_STATUS still comes, at 0 V, with the battery sensor present but
+    // not enabled. That is no reading, not a bad one.
+    let Some(copter) = ArduPilot::start(2, 1, &["BATT_MONITOR=0"]) else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let config = short_mission(dir.path(), 3.0);
+    let child = qosrt_run(
+        &config,
+        &[
+            "--mavlink",
+            &copter.mavlink(),
+            "--duration-s",
+            "5",
+            "--json",
+        ],
+    );
+    let (report, stderr) = report_of(child, Duration::from_secs(60));
+    assert_eq!(report["autopilot"], "ArduPilot", "{stderr}");
+    let sys_status = report["messages_received"]["SYS_STATUS"]
+        .as_u64()
+        .unwrap_or(0);
+    assert!(sys_status >= 3, "{}", report["messages_received"]);
+    assert_eq!(report["battery"]["samples"], 0, "{}", report["battery"]);
+    let events = event_lines(&report);
+    assert!(
+        !events.iter().any(|e| e.starts_with("telemetry refused")),
+        "{events:?}"
+    );
 }
 
 #[test]

@@ -26,8 +26,8 @@ use algorithms::estimation::projection::Attitude;
 use autopilot_modes::{ArduCopterMode, Px4Mode};
 use mavlink::dialects::common::{
     GimbalDeviceFlags, MavAutopilot, MavCmd, MavFrame, MavLandedState, MavMessage, MavModeFlag,
-    MavResult, MavSensorOrientation, MavState, MavType, PositionTargetTypemask, ATTITUDE_DATA,
-    BATTERY_STATUS_DATA, COMMAND_LONG_DATA, DISTANCE_SENSOR_DATA,
+    MavResult, MavSensorOrientation, MavState, MavSysStatusSensor, MavType, PositionTargetTypemask,
+    ATTITUDE_DATA, BATTERY_STATUS_DATA, COMMAND_LONG_DATA, DISTANCE_SENSOR_DATA,
     GIMBAL_DEVICE_ATTITUDE_STATUS_DATA, HEARTBEAT_DATA, LANDING_TARGET_DATA,
     LOCAL_POSITION_NED_DATA, SET_POSITION_TARGET_LOCAL_NED_DATA, SYS_STATUS_DATA,
 };
@@ -162,16 +162,25 @@ pub fn battery_from_battery_status(status: &BATTERY_STATUS_DATA, time_s: f64) ->
 }
 
 /// SYS_STATUS → telemetry. `voltage_battery` UINT16_MAX, `current_battery` −1 and
-/// `battery_remaining` −1 mean "not measured"; SYS_STATUS has no consumed charge.
-pub fn battery_from_sys_status(status: &SYS_STATUS_DATA, time_s: f64) -> BatteryTelemetry {
-    BatteryTelemetry {
+/// `battery_remaining` −1 mean "not measured"; SYS_STATUS has no consumed charge. `None` when
+/// the sensor bits say the battery monitor is present but not enabled: its fields then measure
+/// nothing (ArduPilot with `BATT_MONITOR = 0` sends 0 V there). An autopilot that leaves the
+/// bits empty, as some do, is taken at its fields.
+pub fn battery_from_sys_status(status: &SYS_STATUS_DATA, time_s: f64) -> Option<BatteryTelemetry> {
+    let battery = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY;
+    if status.onboard_control_sensors_present.contains(battery)
+        && !status.onboard_control_sensors_enabled.contains(battery)
+    {
+        return None;
+    }
+    Some(BatteryTelemetry {
         time_s,
         voltage_v: (status.voltage_battery != UINT16_UNKNOWN)
             .then_some(f64::from(status.voltage_battery) / 1000.0),
         current_a: current_from_centiamps(status.current_battery),
         consumed_mah: None,
         remaining_fraction: remaining_from_percent(status.battery_remaining),
-    }
+    })
 }
 
 fn current_from_centiamps(current_ca: i16) -> Option<f64> {
@@ -351,9 +360,9 @@ impl TelemetryState {
             }
             MavMessage::SYS_STATUS(status) => {
                 let battery = battery_from_sys_status(status, now_s);
-                self.sys_status_voltage_v = battery.voltage_v;
+                self.sys_status_voltage_v = battery.and_then(|b| b.voltage_v);
                 // BATTERY_STATUS is richer (consumed charge); SYS_STATUS speaks only without it.
-                if !self.has_battery_status {
+                if let Some(battery) = battery.filter(|_| !self.has_battery_status) {
                     self.battery = Some(battery);
                     applied.battery = true;
                 }

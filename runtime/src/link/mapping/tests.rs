@@ -143,15 +143,40 @@ fn sys_status(voltage_mv: u16, current_ca: i16, remaining: i8) -> SYS_STATUS_DAT
 
 #[test]
 fn sys_status_sentinels() {
-    let unknown = battery_from_sys_status(&sys_status(u16::MAX, -1, -1), 1.0);
+    let unknown = battery_from_sys_status(&sys_status(u16::MAX, -1, -1), 1.0).unwrap();
     assert_eq!(unknown.voltage_v, None);
     assert_eq!(unknown.current_a, None);
     assert_eq!(unknown.remaining_fraction, None);
-    let known = battery_from_sys_status(&sys_status(15_800, 2_050, 55), 1.0);
+    let known = battery_from_sys_status(&sys_status(15_800, 2_050, 55), 1.0).unwrap();
     assert_eq!(known.voltage_v, Some(15.8));
     assert_eq!(known.current_a, Some(20.5));
     assert_eq!(known.remaining_fraction, Some(0.55));
     assert_eq!(known.consumed_mah, None);
+}
+
+#[test]
+fn a_battery_monitor_present_but_not_enabled_is_no_reading() {
+    // ArduCopter 4.6.3 SITL's sensor bits, recorded by `qosrt run`: with BATT_MONITOR = 0 the
+    // battery (bit 25) is present but not enabled, at 0 V; with its default monitor, enabled.
+    let with_bits = |present: u32, enabled: u32| SYS_STATUS_DATA {
+        onboard_control_sensors_present: MavSysStatusSensor::from_bits_truncate(present),
+        onboard_control_sensors_enabled: MavSysStatusSensor::from_bits_truncate(enabled),
+        ..sys_status(0, -1, -1)
+    };
+    let off = with_bits(0x5371_fc0f, 0x5041_9c0f);
+    assert_eq!(battery_from_sys_status(&off, 1.0), None);
+    let mut state = TelemetryState::new();
+    let applied = state.apply(&MavMessage::SYS_STATUS(off), 1.0);
+    assert!(!applied.battery);
+    assert_eq!(state.battery(), None);
+    let on = SYS_STATUS_DATA {
+        voltage_battery: 12_600,
+        ..with_bits(0x5371_fc0f, 0x5241_9c0f)
+    };
+    assert_eq!(
+        battery_from_sys_status(&on, 1.0).and_then(|b| b.voltage_v),
+        Some(12.6)
+    );
 }
 
 #[test]
